@@ -1,0 +1,3 @@
+from msleak.cli import main
+
+main()

@@ -1,0 +1,113 @@
+"""The ``msleak`` command-line interface: one click group, one thin module per command.
+
+Commands are imported only when used, so ``msleak --help`` stays fast and a heavy
+dependency of one command never slows another.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from msleak import __version__
+from msleak.errors import MsleakError
+
+__all__ = ["main", "cli"]
+
+#: command name -> "module:function" (module relative to msleak.cli)
+COMMANDS = {
+    "simulate": "simulate:simulate",
+    "sky": "sky:sky",
+    "beam": "beam:beam",
+    "predict": "predict:predict",
+    "grid": "grid:grid",
+    "transform": "transform:transform",
+    "ps": "ps:ps",
+    "leakage": "leakage:leakage",
+    "paper": "paper:paper",
+}
+
+log = logging.getLogger("msleak")
+
+
+class LazyGroup(click.Group):
+    """A click group that imports each command's module on first use."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return [name for name in COMMANDS if self._available(name)]
+
+    @staticmethod
+    def _available(name: str) -> bool:
+        module = COMMANDS[name].split(":")[0]
+        return importlib.util.find_spec(f"msleak.cli.{module}") is not None
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS or not self._available(name):
+            return None
+        module, func = COMMANDS[name].split(":")
+        return getattr(importlib.import_module(f"msleak.cli.{module}"), func)
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except MsleakError as err:
+            click.echo(f"msleak: error: {_one_line(err)}", err=True)
+            ctx.exit(2)
+        except KeyboardInterrupt:
+            click.echo("msleak: interrupted; the Measurement Set is readable, rerun the "
+                       "same command to finish", err=True)
+            ctx.exit(130)
+        except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
+            raise
+        except Exception as err:  # noqa: BLE001 - last-resort one-line report
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.echo(f"msleak: unexpected failure: {type(err).__name__}: {_one_line(err)} "
+                       "(rerun with `msleak --debug ...` for the traceback)", err=True)
+            ctx.exit(1)
+
+
+def _one_line(err: BaseException) -> str:
+    text = " ".join(str(err).split())
+    return text or type(err).__name__
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="msleak")
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors.")
+@click.option("--debug", is_flag=True, help="Show the full traceback of unexpected failures.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
+    """msleak: polarization leakage (Q/U -> I) through primary beams, and its effect on
+    21-cm power spectra, from any Measurement Set.
+
+    \b
+    Typical flow:
+      msleak simulate obs.ms --field 3c196
+      msleak sky sky.fits
+      msleak predict obs.ms --sky sky.fits --beam everybeam
+      msleak grid obs.ms --column MODEL_DATA -o grid.h5
+      msleak transform grid.h5 -o delay.h5
+      msleak ps delay.h5 -o ps.h5
+      msleak leakage ps.h5 -o leakage/
+    or the whole study at once:  msleak paper OUTDIR [--quick]
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+    level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s",
+                                           "%H:%M:%S"))
+    root = logging.getLogger("msleak")
+    root.handlers[:] = [h for h in root.handlers if isinstance(h, logging.NullHandler)]
+    root.addHandler(handler)
+    root.setLevel(level)
+
+
+def main() -> None:
+    """Entry point of the ``msleak`` console script."""
+    cli(prog_name="msleak")

@@ -1,0 +1,278 @@
+"""Measurement Set readers: one function per subtable, returning arrays, not open tables.
+
+All readers check that the MS and the subtable exist and raise
+:class:`~msleak.errors.InputError` with a one-line message otherwise. Tables are opened
+with ``ack=False`` inside ``with`` blocks. Main-table data are read in row chunks by
+:func:`iter_rows` so memory stays bounded whatever the size of the MS.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from msleak.errors import InputError
+
+__all__ = [
+    "SpectralWindow", "Field", "Antennas",
+    "check_ms", "open_table", "column_names", "read_spectral_windows",
+    "read_data_descriptions", "read_corr_types", "read_fields", "read_antennas",
+    "read_times", "read_telescope_name", "has_lofar_tables", "iter_rows", "ms_summary",
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SpectralWindow:
+    """One SPECTRAL_WINDOW row: channel centres ``freq`` and widths ``width`` (nchan,), Hz."""
+
+    freq: np.ndarray
+    width: np.ndarray
+    name: str = ""
+
+    @property
+    def nchan(self) -> int:
+        return int(self.freq.size)
+
+
+@dataclass(frozen=True)
+class Field:
+    """One FIELD row: name and J2000 phase centre (rad)."""
+
+    name: str
+    ra: float
+    dec: float
+
+
+@dataclass(frozen=True)
+class Antennas:
+    """The ANTENNA table: ``names`` (nant,), ITRF ``positions`` (nant, 3) m, ``diameter`` (nant,) m."""
+
+    names: list
+    positions: np.ndarray
+    diameter: np.ndarray
+    stations: list
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def _casacore_tables():
+    import casacore.tables as pt
+
+    return pt
+
+
+def check_ms(path: str | os.PathLike) -> Path:
+    """Return ``path`` as a Path if it is a readable Measurement Set, else raise InputError."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such Measurement Set")
+    if not path.is_dir() or not (path / "table.dat").exists():
+        raise InputError(f"{path}: not a Measurement Set (no casacore table there)")
+    for sub in ("ANTENNA", "SPECTRAL_WINDOW", "POLARIZATION", "FIELD", "DATA_DESCRIPTION"):
+        if not (path / sub / "table.dat").exists():
+            raise InputError(f"{path}: not a complete Measurement Set (no {sub} subtable)")
+    return path
+
+
+@contextlib.contextmanager
+def open_table(path: str | os.PathLike, readonly: bool = True, lockoptions: str = "auto"):
+    """Open a casacore table (``ack=False``) as a context manager."""
+    pt = _casacore_tables()
+    try:
+        table = pt.table(str(path), readonly=readonly, ack=False, lockoptions=lockoptions)
+    except RuntimeError as err:
+        raise InputError(f"{path}: cannot open table ({' '.join(str(err).split())[:160]})") from err
+    try:
+        yield table
+    finally:
+        table.close()
+
+
+def _subtable(ms: Path, name: str) -> Path:
+    sub = Path(ms) / name
+    if not (sub / "table.dat").exists():
+        raise InputError(f"{ms}: Measurement Set has no {name} subtable")
+    return sub
+
+
+def column_names(ms: str | os.PathLike) -> list[str]:
+    """Names of the main-table columns."""
+    with open_table(check_ms(ms)) as t:
+        return list(t.colnames())
+
+
+def read_spectral_windows(ms: str | os.PathLike) -> list[SpectralWindow]:
+    """Every SPECTRAL_WINDOW row (channel centres and widths in Hz)."""
+    with open_table(_subtable(check_ms(ms), "SPECTRAL_WINDOW")) as t:
+        out = []
+        for row in range(t.nrows()):
+            freq = np.asarray(t.getcell("CHAN_FREQ", row), dtype=float)
+            width = np.abs(np.asarray(t.getcell("CHAN_WIDTH", row), dtype=float))
+            name = t.getcell("NAME", row) if "NAME" in t.colnames() else ""
+            out.append(SpectralWindow(freq=freq, width=width, name=str(name)))
+    return out
+
+
+def read_data_descriptions(ms: str | os.PathLike) -> list[tuple[int, int]]:
+    """(SPECTRAL_WINDOW_ID, POLARIZATION_ID) of every DATA_DESCRIPTION row."""
+    with open_table(_subtable(check_ms(ms), "DATA_DESCRIPTION")) as t:
+        spw = t.getcol("SPECTRAL_WINDOW_ID")
+        pol = t.getcol("POLARIZATION_ID")
+    return [(int(s), int(p)) for s, p in zip(spw, pol)]
+
+
+def read_corr_types(ms: str | os.PathLike) -> list[np.ndarray]:
+    """CORR_TYPE of every POLARIZATION row."""
+    with open_table(_subtable(check_ms(ms), "POLARIZATION")) as t:
+        return [np.asarray(t.getcell("CORR_TYPE", row), dtype=int) for row in range(t.nrows())]
+
+
+def read_fields(ms: str | os.PathLike) -> list[Field]:
+    """Name and phase centre (PHASE_DIR, rad) of every FIELD row."""
+    with open_table(_subtable(check_ms(ms), "FIELD")) as t:
+        names = t.getcol("NAME") if t.nrows() else []
+        out = []
+        for row in range(t.nrows()):
+            direction = np.asarray(t.getcell("PHASE_DIR", row), dtype=float).reshape(-1, 2)[0]
+            out.append(Field(name=str(names[row]), ra=float(direction[0]), dec=float(direction[1])))
+    if not out:
+        raise InputError(f"{ms}: FIELD table is empty")
+    return out
+
+
+def read_antennas(ms: str | os.PathLike) -> Antennas:
+    """Names, ITRF positions (m) and dish diameters of every ANTENNA row."""
+    with open_table(_subtable(check_ms(ms), "ANTENNA")) as t:
+        names = [str(n) for n in t.getcol("NAME")]
+        positions = np.asarray(t.getcol("POSITION"), dtype=float).reshape(-1, 3)
+        diameter = np.asarray(t.getcol("DISH_DIAMETER"), dtype=float)
+        stations = [str(s) for s in t.getcol("STATION")]
+    return Antennas(names=names, positions=positions, diameter=diameter, stations=stations)
+
+
+def read_telescope_name(ms: str | os.PathLike) -> str:
+    """OBSERVATION::TELESCOPE_NAME of the first row ('' if absent)."""
+    sub = Path(check_ms(ms)) / "OBSERVATION"
+    if not (sub / "table.dat").exists():
+        return ""
+    with open_table(sub) as t:
+        return str(t.getcell("TELESCOPE_NAME", 0)) if t.nrows() else ""
+
+
+def has_lofar_tables(ms: str | os.PathLike) -> bool:
+    """True if the MS has the LOFAR subtables EveryBeam needs for a LOFAR station beam."""
+    ms = check_ms(ms)
+    if not (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists():
+        return False
+    with open_table(Path(ms) / "FIELD") as t:
+        has_tile_dir = "LOFAR_TILE_BEAM_DIR" in t.colnames()
+    with open_table(Path(ms) / "ANTENNA") as t:
+        has_ref = "LOFAR_PHASE_REFERENCE" in t.colnames()
+    return has_tile_dir and has_ref
+
+
+def read_times(ms: str | os.PathLike, field_id: int | None = None,
+               ddid: int | None = None) -> np.ndarray:
+    """Sorted unique TIME values (MJD seconds, integration centres) of the main table."""
+    times = []
+    for _, cols in iter_rows(ms, ["TIME"], field_id=field_id, ddid=ddid, chunk_rows=1_000_000):
+        times.append(np.unique(cols["TIME"]))
+    if not times:
+        return np.zeros(0)
+    return np.unique(np.concatenate(times))
+
+
+def _selection(table, field_id, ddid):
+    conditions = []
+    if field_id is not None:
+        conditions.append(f"FIELD_ID=={int(field_id)}")
+    if ddid is not None:
+        conditions.append(f"DATA_DESC_ID=={int(ddid)}")
+    if not conditions:
+        return table, None
+    sel = table.query(" && ".join(conditions), sortlist="", columns="")
+    return sel, sel.rownumbers(table)
+
+
+def iter_rows(ms: str | os.PathLike, columns: Sequence[str], *, chunk_rows: int = 100_000,
+              field_id: int | None = None, ddid: int | None = None,
+              readonly: bool = True) -> Iterator[tuple[np.ndarray, dict]]:
+    """Yield ``(row_numbers, {column: array})`` chunks of the main table, in row order.
+
+    Arrays come as casacore returns them: DATA ``(row, chan, corr)``, UVW ``(row, 3)``, ...
+    ``row_numbers`` index the full main table (also when a selection is made).
+    """
+    ms = check_ms(ms)
+    if chunk_rows <= 0:
+        raise InputError("chunk size must be positive")
+    with open_table(ms, readonly=readonly) as table:
+        missing = [c for c in columns if c not in table.colnames()]
+        if missing:
+            raise InputError(f"{ms}: no column {', '.join(missing)} "
+                             f"(columns: {', '.join(table.colnames())})")
+        sel, rownumbers = _selection(table, field_id, ddid)
+        try:
+            nrow = sel.nrows()
+            for start in range(0, nrow, chunk_rows):
+                n = min(chunk_rows, nrow - start)
+                rows = (np.arange(start, start + n) if rownumbers is None
+                        else np.asarray(rownumbers[start:start + n]))
+                yield rows, {c: sel.getcol(c, startrow=start, nrow=n) for c in columns}
+        finally:
+            if sel is not table:
+                sel.close()
+
+
+def ms_summary(ms: str | os.PathLike) -> str:
+    """A short human-readable description of a Measurement Set."""
+    ms = check_ms(ms)
+    with open_table(ms) as t:
+        nrow = t.nrows()
+        cols = t.colnames()
+    times = read_times(ms)
+    ants = read_antennas(ms)
+    spws = read_spectral_windows(ms)
+    fields = read_fields(ms)
+    corr = read_corr_types(ms)
+    lines = [f"Measurement Set {ms}",
+             f"  telescope      {read_telescope_name(ms) or '?'} "
+             f"({'with' if has_lofar_tables(ms) else 'without'} LOFAR beam tables)",
+             f"  rows           {nrow}",
+             f"  antennas       {len(ants)} ({', '.join(ants.names[:4])}"
+             f"{', ...' if len(ants) > 4 else ''})"]
+    if times.size:
+        step = np.median(np.diff(times)) if times.size > 1 else 0.0
+        lines.append(f"  times          {times.size} x {step:.1f} s "
+                     f"({(times[-1] - times[0] + step) / 3600:.2f} h)")
+    for i, f in enumerate(fields):
+        lines.append(f"  field {i}        {f.name}: RA {np.degrees(f.ra) % 360:.4f} deg, "
+                     f"Dec {np.degrees(f.dec):.4f} deg")
+    for i, s in enumerate(spws):
+        lines.append(f"  spw {i}          {s.nchan} channels, {s.freq[0] / 1e6:.4f}-"
+                     f"{s.freq[-1] / 1e6:.4f} MHz, width {s.width[0] / 1e3:.4f} kHz")
+    lines.append(f"  correlations   {[[int(x) for x in c] for c in corr]}")
+    lines.append(f"  data columns   {', '.join(c for c in cols if c.endswith('DATA'))}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python -m msleak.io.ms summary PATH
+    import sys
+
+    if len(sys.argv) == 3 and sys.argv[1] == "summary":
+        try:
+            print(ms_summary(sys.argv[2]))
+        except InputError as err:
+            print(f"msleak: error: {err}", file=sys.stderr)
+            sys.exit(2)
+    else:
+        print("usage: python -m msleak.io.ms summary MS", file=sys.stderr)
+        sys.exit(2)

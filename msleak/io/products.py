@@ -1,0 +1,112 @@
+"""msleak's data products on disk: self-describing HDF5 files readable with xarray.
+
+Every product is an :class:`xarray.Dataset` written with the h5netcdf engine (complex
+values allowed), so ``xarray.open_dataset(path)`` opens it. Global attributes always
+present:
+
+``msleak_product``   the kind: ``uvcube``, ``delay``, ``ps``, ``beam``, ``leakage``, ...
+``msleak_version``   the version that wrote it
+``msleak_format``    the product format version (an integer, bumped on layout changes)
+``command``          the command line that made it
+``created``          UTC time stamp (ISO 8601)
+
+The layouts of each kind are documented in docs/products.md.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import sys
+from pathlib import Path
+from typing import Iterable
+
+import xarray as xr
+
+from msleak import __version__
+from msleak.errors import InputError
+
+__all__ = ["FORMAT_VERSION", "save_product", "open_product", "command_line"]
+
+#: Layout version of every product kind written by this msleak.
+FORMAT_VERSION = 1
+
+
+def command_line() -> str:
+    """The command line of this process, for provenance."""
+    return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
+
+
+def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
+                 overwrite: bool = True) -> Path:
+    """Write ``ds`` as an msleak product of the given kind; returns the path.
+
+    The file is written to a temporary name and renamed, so an interrupted write never
+    leaves a truncated product under the final name.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise InputError(f"{path} exists; choose another name or pass --overwrite")
+    if path.parent and not path.parent.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+    ds = ds.copy()
+    ds.attrs.update({
+        "msleak_product": kind,
+        "msleak_version": __version__,
+        "msleak_format": FORMAT_VERSION,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    })
+    ds.attrs.setdefault("command", command_line())
+    for name, value in list(ds.attrs.items()):
+        if isinstance(value, bool):
+            ds.attrs[name] = int(value)
+        elif value is None:
+            ds.attrs[name] = ""
+    tmp = path.with_name(f".{path.name}.partial")
+    try:
+        ds.to_netcdf(tmp, engine="h5netcdf", invalid_netcdf=True)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def open_product(path: str | os.PathLike, kind: str | Iterable[str] | None = None,
+                 required: Iterable[str] = ()) -> xr.Dataset:
+    """Open an msleak product, loaded into memory, checking its kind and variables.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, not an msleak product, of another kind, written by an
+        incompatible format version, or lacks a required variable.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            ds = ds.load()
+    except Exception as err:  # h5py/h5netcdf raise many types for a bad file
+        raise InputError(f"{path}: not a readable msleak product file ({_short(err)})") from err
+    found = ds.attrs.get("msleak_product")
+    if found is None:
+        raise InputError(f"{path}: not an msleak product (no msleak_product attribute)")
+    kinds = {kind} if isinstance(kind, str) else (set(kind) if kind else None)
+    if kinds and found not in kinds:
+        raise InputError(f"{path}: is a {found!r} product, expected {' or '.join(sorted(kinds))}")
+    fmt = int(ds.attrs.get("msleak_format", 0))
+    if fmt != FORMAT_VERSION:
+        raise InputError(
+            f"{path}: product format {fmt} written by msleak "
+            f"{ds.attrs.get('msleak_version', '?')}, this msleak {__version__} reads format "
+            f"{FORMAT_VERSION}; regenerate it with this version")
+    missing = [name for name in required if name not in ds.variables]
+    if missing:
+        raise InputError(f"{path}: {found} product lacks {', '.join(missing)}")
+    return ds
+
+
+def _short(err: BaseException) -> str:
+    return " ".join(str(err).split())[:200] or type(err).__name__

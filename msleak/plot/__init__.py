@@ -1,0 +1,37 @@
+"""Every msleak figure (matplotlib is imported only in this package).
+
+One module per topic: :mod:`msleak.plot.sky`, :mod:`msleak.plot.beam`,
+:mod:`msleak.plot.ps`, :mod:`msleak.plot.leakage`. Each function takes arrays or
+products and a path, and writes the figure (PNG, and PDF beside it when asked).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["new_figure", "save_figure"]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def new_figure(*args, **kwargs):
+    """``plt.subplots`` with the non-interactive backend; returns (fig, axes)."""
+    return _pyplot().subplots(*args, **kwargs)
+
+
+def save_figure(fig, path, pdf: bool = False, dpi: int = 130) -> Path:
+    """Save ``fig`` to ``path`` (and a PDF beside it if ``pdf``), then close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    if pdf and path.suffix.lower() != ".pdf":
+        fig.savefig(path.with_suffix(".pdf"), bbox_inches="tight")
+    _pyplot().close(fig)
+    return path

@@ -1,0 +1,1 @@
+"""msleak.telescope."""
