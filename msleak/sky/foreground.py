@@ -1,0 +1,238 @@
+"""Diffuse polarized Galactic foreground cubes after Jelic et al. (2008, 2010), "model B".
+
+A box of ``npix x npix`` lines of sight and ``ncells_los`` cells along each (a slab
+``depth_pc`` deep, the observer in front of cell 0) holds
+
+* a magnetic field B = B_regular + B_random, B_random a Gaussian random vector field
+  with P(k) ~ k^-b_index (divergence-free by default) and rms |B_random| = b_random_rms;
+* thermal electrons n_e, log-normal about ``ne_mean`` with log-width ``ne_sigma_ln``
+  (the logarithm is a Gaussian random field with P(k) ~ k^-ne_index);
+* cosmic-ray electrons n_CR (relative units, mean 1), log-normal in the same way.
+
+Per cell: polarized synchrotron emissivity eps = Pi n_CR B_perp^((p+1)/2) (Pi =
+(p+1)/(p+7/3) the intrinsic fraction), intrinsic angle chi0 = angle of B_perp + 90 deg,
+Faraday thickness 0.812 n_e B_par dl. The cube is P = sum_z eps exp(2i (chi0 + phi
+lambda^2)) (see :mod:`msleak.sky.faraday`), scaled in brightness temperature as nu^-beta,
+beta = (p + 3) / 2, and normalised so that the rms of |P| over the map at ``ref_freq_hz``
+equals ``p_rms_k`` (the emissivity's absolute scale is the one free calibration constant).
+
+Box axes: z away from the observer, y towards +Dec (north), x along the image x axis
+(towards -RA, west). Sky-plane components: B_north = B_y, B_east = -B_x; B_par = -B_z
+(positive towards the observer gives positive Faraday depth).
+
+Every random field has its own child of one :class:`numpy.random.SeedSequence`, so the
+same seed gives the same cube bit for bit, and changing one field's options leaves the
+others unchanged.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from msleak.errors import InputError
+from msleak.sky.cube import SkyCube, make_celestial_wcs
+from msleak.sky.faraday import (faraday_depth_near_face, faraday_thickness,
+                                polarized_brightness)
+from msleak.sky.fields import gaussian_random_field, lognormal_field, solenoidal_vector_field
+
+__all__ = ["ForegroundParams", "ForegroundBox", "build_box", "generate_foreground_cube",
+           "channel_frequencies"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ForegroundParams:
+    """Physical parameters of the foreground model (units in the names).
+
+    Defaults are calibrated to a few K rms polarized brightness at 150 MHz and Faraday
+    depths within about +-10 rad m^-2 (see docs/sky.md for measured values).
+    """
+
+    depth_pc: float = 1000.0             #: slab depth along the line of sight, pc
+    ncells_los: int = 100                #: cells along the line of sight
+    cell_perp_pc: float | None = None    #: transverse cell size, pc (default: depth/ncells)
+    b_regular_ug: tuple[float, float, float] = (1.0, 1.0, 0.2)  #: (B_east, B_north, B_par), uG
+    b_random_rms_ug: float = 2.5         #: rms |B_random|, uG
+    b_index: float = 11.0 / 3.0          #: 3-D power-spectrum index of B_random
+    solenoidal: bool = True              #: project B_random to div B = 0
+    ne_mean_cm3: float = 0.01            #: mean thermal electron density, cm^-3
+    ne_sigma_ln: float = 0.5             #: log-normal width of n_e
+    ne_index: float = 11.0 / 3.0         #: 3-D spectral index of log n_e
+    ncr_sigma_ln: float = 0.5            #: log-normal width of n_CR
+    ncr_index: float = 11.0 / 3.0        #: 3-D spectral index of log n_CR
+    electron_index: float = 2.1          #: p, cosmic-ray energy spectrum N(E) ~ E^-p
+    outer_scale_pc: float | None = None  #: outer scale of all random fields, pc (None: none)
+    p_rms_k: float = 3.0                 #: rms |P| at ref_freq_hz, K
+    ref_freq_hz: float = 150e6           #: normalisation frequency, Hz
+
+    def validate(self) -> None:
+        """Raise :class:`InputError` for unphysical values."""
+        checks = [
+            (self.depth_pc > 0, "--depth-pc must be > 0"),
+            (self.ncells_los >= 2, "--ncells-los must be >= 2"),
+            (self.cell_perp_pc is None or self.cell_perp_pc > 0, "--cell-perp-pc must be > 0"),
+            (len(self.b_regular_ug) == 3, "--b-regular needs 3 components"),
+            (self.b_random_rms_ug >= 0, "--b-random-rms must be >= 0"),
+            (self.ne_mean_cm3 >= 0, "--ne-mean must be >= 0"),
+            (self.ne_sigma_ln >= 0 and self.ncr_sigma_ln >= 0, "log-normal widths must be >= 0"),
+            (self.electron_index > 1, "--electron-index must be > 1"),
+            (self.outer_scale_pc is None or self.outer_scale_pc > 0,
+             "--outer-scale-pc must be > 0"),
+            (self.p_rms_k > 0, "--p-rms must be > 0"),
+            (self.ref_freq_hz > 0, "--ref-freq must be > 0"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise InputError(msg)
+        values = [self.depth_pc, self.b_random_rms_ug, self.ne_mean_cm3, self.p_rms_k,
+                  self.b_index, self.ne_index, self.ncr_index, *self.b_regular_ug]
+        if not all(math.isfinite(float(v)) for v in values):
+            raise InputError("foreground parameters must be finite numbers")
+
+    @property
+    def beta(self) -> float:
+        """Brightness-temperature spectral index, T ~ nu^-beta, beta = (p + 3) / 2."""
+        return (self.electron_index + 3.0) / 2.0
+
+    @property
+    def intrinsic_fraction(self) -> float:
+        """Intrinsic polarized fraction of synchrotron emission, (p + 1) / (p + 7/3)."""
+        p = self.electron_index
+        return (p + 1.0) / (p + 7.0 / 3.0)
+
+
+@dataclass(frozen=True, eq=False)
+class ForegroundBox:
+    """Per-cell quantities of a generated box, each (nz, ny, nx) (z = line of sight).
+
+    amp is the polarized emissivity per cell in relative units (before normalisation).
+    """
+
+    amp: np.ndarray
+    chi0: np.ndarray
+    dphi: np.ndarray
+    cell_pc: tuple[float, float, float]
+
+    def faraday_depth(self) -> np.ndarray:
+        """Faraday depth at the far side of every cell, rad m^-2, (nz, ny, nx)."""
+        return np.cumsum(self.dphi, axis=0)
+
+
+def build_box(params: ForegroundParams, npix: int, seed: int | None = None
+              ) -> tuple[ForegroundBox, int]:
+    """Draw the random fields and return the per-cell emission and Faraday quantities.
+
+    The transverse cell size is ``params.cell_perp_pc`` or, by default, the line-of-sight
+    cell size (cubic cells, as in Jelic et al.'s boxes).
+
+    Returns the box and the integer entropy of the seed sequence actually used (equal to
+    ``seed`` when given), so that an unseeded run can be reproduced.
+    """
+    params.validate()
+    if npix < 2:
+        raise InputError(f"--npix must be >= 2, got {npix}")
+    nz = int(params.ncells_los)
+    dz = params.depth_pc / nz
+    dperp = params.cell_perp_pc if params.cell_perp_pc is not None else dz
+    shape, cell = (nz, npix, npix), (dz, dperp, dperp)
+    ss = np.random.SeedSequence(seed)
+    rng_b, rng_ne, rng_cr = (np.random.default_rng(s) for s in ss.spawn(3))
+
+    b_e, b_n, b_par = (float(v) for v in params.b_regular_ug)
+    bvec = solenoidal_vector_field(shape, cell, params.b_index, rng_b,
+                                   outer_scale=params.outer_scale_pc,
+                                   solenoidal=params.solenoidal)
+    bvec *= params.b_random_rms_ug
+    bz_par = b_par - bvec[0]
+    bnorth = b_n + bvec[1]
+    beast = b_e - bvec[2]
+    del bvec
+    gne = gaussian_random_field(shape, cell, params.ne_index, rng_ne,
+                                outer_scale=params.outer_scale_pc)
+    ne = lognormal_field(gne, params.ne_mean_cm3, params.ne_sigma_ln)
+    del gne
+    gcr = gaussian_random_field(shape, cell, params.ncr_index, rng_cr,
+                                outer_scale=params.outer_scale_pc)
+    ncr = lognormal_field(gcr, 1.0, params.ncr_sigma_ln)
+    del gcr
+
+    bperp = np.hypot(bnorth, beast)
+    amp = params.intrinsic_fraction * ncr * bperp ** ((params.electron_index + 1.0) / 2.0) * dz
+    del ncr, bperp
+    chi0 = np.arctan2(beast, bnorth) + 0.5 * np.pi
+    del beast, bnorth
+    dphi = faraday_thickness(ne, bz_par, dz)
+    return ForegroundBox(amp=amp, chi0=chi0, dphi=dphi, cell_pc=cell), int(ss.entropy)
+
+
+def channel_frequencies(freq_min_hz: float, nchan: int, chan_width_hz: float) -> np.ndarray:
+    """Channel centres: channel i at freq_min + i * width (Hz), as ``msleak simulate``."""
+    if not (freq_min_hz > 0 and chan_width_hz > 0 and nchan >= 1):
+        raise InputError("--freq-min and --chan-width must be > 0 and --nchan >= 1")
+    return freq_min_hz + np.arange(int(nchan)) * chan_width_hz
+
+
+def generate_foreground_cube(*, npix: int = 50, fov_deg: float = 15.0,
+                             freq_min_hz: float = 150e6, nchan: int = 50,
+                             chan_width_hz: float = 195312.5,
+                             phase_centre: tuple[float, float] = (0.0, math.pi / 2),
+                             seed: int | None = None,
+                             params: ForegroundParams | None = None) -> SkyCube:
+    """Generate Q and U foreground cubes in K (method.md section 3).
+
+    Parameters
+    ----------
+    npix : pixels a side
+    fov_deg : field of view a side, deg (pixel = fov / npix)
+    freq_min_hz, nchan, chan_width_hz : channels, centre of channel i = freq_min + i width
+    phase_centre : (RA, Dec) of the cube centre, rad (default the NCP)
+    seed : integer seed; ``None`` draws fresh entropy (recorded in ``meta["SEED"]``)
+    params : physical parameters (:class:`ForegroundParams`)
+
+    Returns
+    -------
+    SkyCube with data (2, nchan, npix, npix) float64 (Q, U) in K and the parameters,
+    seed and measured statistics (PRMS150, PHIMIN, PHIMAX, PHISTD) in ``meta``.
+    """
+    params = params or ForegroundParams()
+    if not (fov_deg > 0 and math.isfinite(fov_deg)) or fov_deg >= 180:
+        raise InputError(f"--fov must be between 0 and 180 deg, got {fov_deg}")
+    freq = channel_frequencies(freq_min_hz, nchan, chan_width_hz)
+    box, entropy = build_box(params, int(npix), seed)
+    beta = params.beta
+    ref = polarized_brightness(box.amp, box.chi0, box.dphi, np.array([params.ref_freq_hz]))[0]
+    rms_ref = float(np.sqrt(np.mean(np.abs(ref) ** 2)))
+    if rms_ref == 0:
+        raise InputError("the model has no polarized emission (B_perp or n_CR is zero)")
+    scale = params.p_rms_k / rms_ref
+    spectral = (freq / params.ref_freq_hz) ** (-beta)
+    pcube = polarized_brightness(box.amp * scale, box.chi0, box.dphi, freq,
+                                 spectral_factor=spectral)
+    data = np.stack([pcube.real, pcube.imag])
+    phi_total = box.faraday_depth()[-1]
+    phi_all = faraday_depth_near_face(box.dphi) + 0.5 * box.dphi
+    ra0, dec0 = phase_centre
+    wcs = make_celestial_wcs(npix, npix, fov_deg / npix, math.degrees(ra0), math.degrees(dec0))
+    meta = {f"P_{k.upper()}": (v if not isinstance(v, tuple) else ",".join(map(str, v)))
+            for k, v in asdict(params).items() if v is not None}
+    meta.update({
+        "GENERATR": "msleak.sky.foreground (Jelic et al. 2008/2010 model B)",
+        "SEED": entropy,
+        "BETA": beta,
+        "EMSCALE": scale,
+        "PRMSREF": float(np.sqrt(np.mean(np.abs(pcube[0]) ** 2))) if nchan else 0.0,
+        "PRMS150": params.p_rms_k,
+        "PHIMIN": float(phi_total.min()),
+        "PHIMAX": float(phi_total.max()),
+        "PHISTD": float(phi_total.std()),
+        "PHICELL1": float(np.percentile(phi_all, 1)),
+        "PHICEL99": float(np.percentile(phi_all, 99)),
+    })
+    log.info("foreground cube: rms |P| = %.3g K at %.4g MHz, total Faraday depth %.3g..%.3g "
+             "rad/m^2", params.p_rms_k, params.ref_freq_hz / 1e6, meta["PHIMIN"], meta["PHIMAX"])
+    return SkyCube(data=data, freq=freq, stokes=("Q", "U"), wcs=wcs, units="K", meta=meta)
