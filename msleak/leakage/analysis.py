@@ -1,0 +1,363 @@
+"""Assemble leakage results as xarray Datasets (no file access here).
+
+:func:`analyse` turns several PS products (e.g. three fields of view of one field) into
+one leakage result (layout in docs/leakage.md); :func:`predict` and :func:`correct` make
+the expected-leakage and bias-corrected spectra of observed PS products.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Literal, Sequence
+
+import numpy as np
+import xarray as xr
+
+from msleak.errors import InputError
+from msleak.leakage import expected as ex
+from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_map,
+                                     leakage_voxels, stokes_power)
+from msleak.leakage.stats import field_estimate, leakage_statistics
+
+__all__ = ["analyse", "predict", "correct", "ModelMode", "STAT_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+ModelMode = Literal["auto", "map", "median", "field"]
+
+#: per-input statistics, in the order of stats.csv (percent unless n_*)
+STAT_COLUMNS = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
+                "pareto_median_hist", "peak_bin_width", "n_voxels", "n_masked")
+
+_MASK_DOC = ", ".join(f"{c}={n}" for n, c in MASK_CODES.items())
+
+
+def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequence[str],
+            *, stats_from: Literal["voxels", "bins"] = "voxels",
+            negative: NegativePolicy = "mask", bins: int = 100, upper_quantile: float = 0.99,
+            k_par_range: tuple[float, float] | None = None,
+            k_perp_range: tuple[float, float] | None = None,
+            field_name: str = "") -> xr.Dataset:
+    """L_I maps, voxel statistics and Pareto fits of several PS products.
+
+    Parameters
+    ----------
+    datasets : sequence of xarray.Dataset
+        PS products (docs/products.md "ps"), one per input (e.g. field of view).
+    labels, paths : sequence of str
+        A short label (e.g. ``15deg``) and the file name of each input.
+    stats_from : {"voxels", "bins"}
+        Statistics from the unaveraged 3D voxels (``power3d``, default) or the 2D bins.
+    negative : {"mask", "clip"}
+        Treatment of negative P_I (cross-power), see :mod:`msleak.leakage.fraction`.
+    bins, upper_quantile :
+        Histogram binning of L_I for the peak: ``bins`` uniform bins on [0, quantile].
+    k_par_range, k_perp_range : (float, float), optional
+        Restrict the statistics (not the maps) to |k_par| and k_perp in these ranges, Mpc^-1.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dims (input, k_par, k_perp) for the maps, (input,) for statistics,
+        (input, hist_bin) and (input, hist_edge) for the histograms.
+    """
+    if not datasets:
+        raise InputError("no PS product given")
+    maps, rows, hists, edges, masked = [], [], [], [], []
+    for ds, label, path in zip(datasets, labels, paths):
+        name = str(path)
+        m = leakage_map(ds, negative, name)
+        n_bad = int((m["mask"] != 0).sum())
+        if n_bad:
+            log.info("%s: %d of %d (k_par, k_perp) bins masked", name, n_bad, m["mask"].size)
+        maps.append(m)
+        vox = leakage_voxels(ds, stats_from, negative, k_par_range, k_perp_range, name)
+        if vox.n_masked:
+            log.warning("%s: masked %d of %d %s (%s)", name, vox.n_masked, vox.n_selected,
+                        vox.source, ", ".join(f"{k}: {v}" for k, v in vox.masked.items()))
+        if vox.L.size < 2:
+            raise InputError(f"{name}: only {vox.L.size} valid {vox.source} (of "
+                             f"{vox.n_selected}); P_P is zero or negative almost everywhere")
+        st = leakage_statistics(vox.L, bins, upper_quantile)
+        rows.append({
+            "mean": st.mean, "median": st.median, "std": st.std, "peak": st.peak,
+            "pareto_median": st.pareto_median, "pareto_median_err": st.fit.median_err_percent,
+            "pareto_median_hist": st.fit_hist.median_percent if st.fit_hist else 0.0,
+            "peak_bin_width": st.peak_bin_width, "n_voxels": st.n, "n_masked": vox.n_masked,
+            "pareto_loc": st.fit.loc, "pareto_scale": st.fit.scale,
+            "fit_method": st.fit.method,
+            "wedge_slope_horizon": float(ds.attrs.get("wedge_slope_horizon", 0.0) or 0.0),
+            "wedge_slope_primary": float(ds.attrs.get("wedge_slope_primary", 0.0) or 0.0),
+        })
+        hists.append(st.hist_counts)
+        edges.append(st.hist_edges)
+        masked.append([vox.masked.get(n, 0) for n in MASK_CODES if n != "valid"])
+        log.info("%s (%s): median L_I %.4g %% (data), %.4g +- %.2g %% (Pareto fit), %d %s",
+                 name, label, st.median, st.pareto_median, st.fit.median_err_percent, st.n,
+                 vox.source)
+
+    fill = {"L_I": 0.0, "mask": MASK_CODES["not_in_grid"], "power_I": 0.0, "power_P": 0.0}
+    grid = xr.concat(maps, dim="input", join="outer", fill_value=fill)
+    grid["mask"] = grid["mask"].astype(np.int8)
+    grid["mask"].attrs["long_name"] = f"mask reason code ({_MASK_DOC})"
+    if any(m["k_par"].size != grid["k_par"].size or m["k_perp"].size != grid["k_perp"].size
+           for m in maps):
+        log.warning("the inputs have different k grids; maps are on the union grid and "
+                    "bins outside an input's grid are masked (code %d)",
+                    MASK_CODES["not_in_grid"])
+    n_in = len(datasets)
+    out = grid.assign_coords(input=np.arange(n_in), label=("input", list(labels)),
+                             path=("input", [str(p) for p in paths]))
+    for col in rows[0]:
+        values = [r[col] for r in rows]
+        out[col] = ("input", np.asarray(values))
+    units = {c: "percent" for c in ("mean", "median", "std", "peak", "pareto_median",
+                                    "pareto_median_err", "pareto_median_hist",
+                                    "peak_bin_width")}
+    for c, u in units.items():
+        out[c].attrs["units"] = u
+    out["k_par"].attrs["units"] = "Mpc^-1"
+    out["k_perp"].attrs["units"] = "Mpc^-1"
+    nb = max(len(h) for h in hists)
+    out["hist_counts"] = (("input", "hist_bin"), np.array([np.pad(h, (0, nb - len(h)))
+                                                            for h in hists]))
+    out["hist_edges"] = (("input", "hist_edge"), np.array(
+        [np.pad(e, (0, nb + 1 - len(e)), mode="edge") for e in edges]),
+        {"units": "percent"})
+    reasons = [n for n in MASK_CODES if n != "valid"]
+    out["n_masked_by_reason"] = (("input", "mask_reason"), np.array(masked, dtype=np.int64))
+    out = out.assign_coords(mask_reason=reasons)
+    est, spread = field_estimate(out["pareto_median"].values)
+    est_data, spread_data = field_estimate(out["median"].values)
+    out.attrs.update({
+        "field_name": field_name,
+        "field_estimate": est, "field_estimate_spread": spread,
+        "field_estimate_data": est_data, "field_estimate_data_spread": spread_data,
+        "L_I_definition": "L_I = 100 sqrt(P_I / P_P) percent, P_P = power of Q + iU",
+        "stats_from": stats_from, "negative_policy": negative,
+        "hist_bins": int(bins), "hist_upper_quantile": float(upper_quantile),
+        "hist_binning": f"{bins} uniform bins of L_I from 0 to its {upper_quantile:g} quantile",
+        "fit": "Pareto b=1 (scipy.stats.pareto) on W=(L_I/100)^2, loc and scale by maximum "
+               "likelihood; pareto_median = 100 sqrt(loc + 2 scale)",
+        "k_par_range": list(k_par_range) if k_par_range else [],
+        "k_perp_range": list(k_perp_range) if k_perp_range else [],
+        "mask_codes": _MASK_DOC,
+        "units": str(datasets[0]["power"].attrs.get("units",
+                                                    datasets[0].attrs.get("units", ""))),
+    })
+    return out
+
+
+def _pair(i_obs: int, n_obs: int, n_in: int) -> int | None:
+    if n_in == 1:
+        return 0
+    return i_obs if n_obs == n_in else None
+
+
+def predict(result: xr.Dataset, obs: xr.Dataset, i_obs: int, n_obs: int,
+            mode: ModelMode = "auto", rel_error: float | None = None,
+            name: str = "observed PS") -> xr.Dataset:
+    """Expected leakage PS of one observed PS product: (L_I_model / 100)^2 P_P,obs.
+
+    Parameters
+    ----------
+    result : xarray.Dataset
+        Output of :func:`analyse` (the model).
+    obs : xarray.Dataset
+        Observed PS product with Stokes P in ``power`` (and ``counts``; ``power_sph``
+        optional).
+    i_obs, n_obs : int
+        Index of this observed product and how many there are: observed product i pairs
+        with model input i when their numbers agree, or with the only model input.
+    mode : {"auto", "map", "median", "field"}
+        ``map``: the paired input's L_I map (grids must match; masked model bins take the
+        paired median); ``median``: the paired input's fitted median; ``field``: the
+        per-field estimate (mean of fitted medians); ``auto``: map if paired with the
+        same grid, else median if paired, else field.
+    rel_error : float, optional
+        Relative uncertainty of the model L_I; default: the fit's statistical error (map,
+        median), combined with the spread over fields of view (field).
+    """
+    n_in = result.sizes["input"]
+    j = _pair(i_obs, n_obs, n_in)
+    p_p = stokes_power(obs, "power", "P", name).transpose("k_par", "k_perp")
+    k_par, k_perp = obs["k_par"].values, obs["k_perp"].values
+    if "counts" in obs.variables:
+        counts = obs["counts"].transpose("k_par", "k_perp").values.astype(float)
+    else:
+        log.warning("%s: no 'counts'; sample-variance errors assume 1 cell per bin", name)
+        counts = np.ones(p_p.shape)
+    counts = np.where(np.isfinite(p_p.values), counts, 0.0)
+    p_p_val = np.where(counts > 0, np.real(p_p.values), 0.0)
+    grid_ok = False
+    if j is not None:
+        model = _own_grid(result.isel(input=j))
+        grid_ok = ex.same_grid(model["k_par"].values, model["k_perp"].values, k_par, k_perp)
+    if mode == "auto":
+        mode = "map" if grid_ok else ("median" if j is not None else "field")
+    if mode in ("map", "median") and j is None:
+        raise InputError(f"--expected-model {mode} pairs observed PS i with model input i: "
+                         f"give {n_in} observed PS (got {n_obs}) or use --expected-model field")
+    if mode == "map" and not grid_ok:
+        raise InputError(f"{name}: its (k_par, k_perp) grid differs from the model input "
+                         f"{result['label'].values[j]!r}; use --expected-model median or field")
+    filled = np.zeros(p_p.shape, dtype=np.int8)
+    if mode == "field":
+        L_scalar = float(result.attrs["field_estimate"])
+        stat = float(np.sqrt(np.mean(result["pareto_median_err"].values ** 2)))
+        default_rel = _ratio(ex.leakage_model_error(stat, result["pareto_median"].values),
+                             L_scalar)
+        L_model = np.full(p_p.shape, L_scalar)
+        model_label = f"field estimate of {','.join(map(str, result['label'].values))}"
+    else:
+        L_scalar = float(result["pareto_median"].values[j])
+        default_rel = _ratio(float(result["pareto_median_err"].values[j]), L_scalar)
+        model_label = str(result["label"].values[j])
+        if mode == "median":
+            L_model = np.full(p_p.shape, L_scalar)
+        else:
+            mask = model["mask"].values
+            L_model = np.where(mask == 0, model["L_I"].values, L_scalar)
+            filled = (mask != 0).astype(np.int8)
+            if filled.any():
+                log.info("%s: %d masked model bins use the median L_I %.4g %%", name,
+                         int(filled.sum()), L_scalar)
+    rel = default_rel if rel_error is None else float(rel_error)
+    L_err = rel * L_model
+    leak = ex.expected_leakage_power(p_p_val, L_model)
+    leak_err = ex.expected_leakage_error(p_p_val, counts, L_model, L_err)
+    units = str(obs["power"].attrs.get("units", obs.attrs.get("units", "")))
+    dims = ("k_par", "k_perp")
+    out = xr.Dataset(
+        {
+            "power_P_obs": (dims, p_p_val, {"units": units}),
+            "counts": (dims, counts),
+            "L_I_model": (dims, L_model, {"units": "percent"}),
+            "L_I_model_err": (dims, L_err, {"units": "percent"}),
+            "L_I_model_filled": (dims, filled),
+            "power_leak": (dims, leak, {"units": units,
+                                        "long_name": "(L_I_model/100)^2 P_P,obs"}),
+            "power_leak_err": (dims, leak_err, {"units": units}),
+        },
+        coords={"k_par": ("k_par", k_par, {"units": "Mpc^-1"}),
+                "k_perp": ("k_perp", k_perp, {"units": "Mpc^-1"})},
+    )
+    k, k_edges = _k_bins(obs, k_par, k_perp)
+    if mode != "map" and "power_sph" in obs.variables:
+        # a scalar model scales the observed spherical average exactly
+        pp_sph = np.real(stokes_power(obs, "power_sph", "P", name).values)
+        c_sph = (obs["counts_sph"].values.astype(float) if "counts_sph" in obs.variables
+                 else np.ones(k.size))
+        c_sph = np.where(np.isfinite(pp_sph), c_sph, 0.0)
+        pp_sph = np.where(c_sph > 0, pp_sph, 0.0)
+        sph_source = "power_sph"
+    else:
+        pp_sph, c_sph = ex.spherical_from_bins(p_p_val, counts, k_par, k_perp, k_edges)
+        sph_source = "2D bins"
+    if mode == "map":
+        leak_sph, _ = ex.spherical_from_bins(leak, counts, k_par, k_perp, k_edges)
+        Lsph = np.where(pp_sph > 0, 100 * np.sqrt(np.divide(
+            leak_sph, pp_sph, out=np.zeros_like(pp_sph), where=pp_sph > 0)), L_scalar)
+    else:
+        leak_sph = ex.expected_leakage_power(pp_sph, L_scalar)
+        Lsph = np.full(k.size, L_scalar)
+    out = out.assign_coords(k=("k", k, {"units": "Mpc^-1"}))
+    out["power_P_obs_sph"] = ("k", pp_sph, {"units": units})
+    out["counts_sph"] = ("k", c_sph)
+    out["power_leak_sph"] = ("k", leak_sph, {"units": units})
+    out["power_leak_sph_err"] = ("k", ex.expected_leakage_error(pp_sph, c_sph, Lsph,
+                                                                rel * Lsph), {"units": units})
+    out.attrs.update({
+        "source": name, "model_mode": mode, "model_input": model_label,
+        "L_I_model_scalar": L_scalar, "L_I_model_rel_error": rel,
+        "spherical_from": sph_source, "units": units,
+        "formula": "P_leak = (L_I_model/100)^2 P_P,obs; sigma_leak^2 = (l^2 |P_P|/sqrt(N))^2 "
+                   "+ (2 l sigma_l P_P)^2, l = L_I_model/100",
+    })
+    for key in ("wedge_slope_horizon", "wedge_slope_primary", "cosmology", "redshift"):
+        if key in obs.attrs:
+            out.attrs[key] = obs.attrs[key]
+    return out
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if b > 0 else 0.0
+
+
+def _own_grid(model: xr.Dataset) -> xr.Dataset:
+    """One input's map on its own k grid (drop union-grid rows/columns it lacks)."""
+    inside = model["mask"] != MASK_CODES["not_in_grid"]
+    return model.isel(k_par=inside.any("k_perp").values, k_perp=inside.any("k_par").values)
+
+
+def _k_bins(obs: xr.Dataset, k_par, k_perp) -> tuple[np.ndarray, np.ndarray]:
+    """Spherical k bin centres and edges: the product's ``k`` (edges from ``k_lo``/``k_hi``
+    or midpoints), or, without ``k``, 20 log bins over the 2D grid."""
+    if "k" in obs.coords or "k" in obs.variables:
+        k = np.asarray(obs["k"].values, dtype=float)
+        if "k_lo" in obs.variables and "k_hi" in obs.variables:
+            edges = np.concatenate([obs["k_lo"].values[:1], obs["k_hi"].values]).astype(float)
+        else:
+            edges = ex.edges_from_centres(k)
+        return k, edges
+    kk = np.hypot(np.asarray(k_par)[:, None], np.asarray(k_perp)[None, :])
+    lo = max(kk[kk > 0].min(), 1e-6) if np.any(kk > 0) else 1e-3
+    edges = np.geomspace(lo, kk.max() * 1.0001, 21)
+    return np.sqrt(edges[1:] * edges[:-1]), edges
+
+
+def correct(obs_i: xr.Dataset, expected: xr.Dataset, name: str = "observed PS"
+            ) -> xr.Dataset:
+    """Subtract the expected leakage from the observed Stokes I PS (bias correction).
+
+    Parameters
+    ----------
+    obs_i : xarray.Dataset
+        Observed PS product with Stokes I in ``power`` on the grid of ``expected``.
+    expected : xarray.Dataset
+        Output of :func:`predict`.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``expected`` plus ``power_I_obs``, ``power_I_corrected``,
+        ``power_I_corrected_err`` (k_par, k_perp) and their spherical versions (k).
+    """
+    p_i = stokes_power(obs_i, "power", "I", name).transpose("k_par", "k_perp")
+    if not ex.same_grid(obs_i["k_par"].values, obs_i["k_perp"].values,
+                        expected["k_par"].values, expected["k_perp"].values):
+        raise InputError(f"{name}: its (k_par, k_perp) grid differs from that of the "
+                         f"polarized PS {expected.attrs.get('source', '')}")
+    counts = expected["counts"].values
+    if "counts" in obs_i.variables:
+        counts = np.minimum(counts, obs_i["counts"].transpose("k_par", "k_perp").values)
+    counts = np.where(np.isfinite(p_i.values), counts, 0.0)
+    p_i_val = np.where(counts > 0, np.real(p_i.values), 0.0)
+    corr, err = ex.bias_correct(p_i_val, counts, expected["power_leak"].values,
+                                expected["power_leak_err"].values)
+    out = expected.copy()
+    units = expected.attrs.get("units", "")
+    dims = ("k_par", "k_perp")
+    out["power_I_obs"] = (dims, p_i_val, {"units": units})
+    out["power_I_corrected"] = (dims, corr, {"units": units,
+                                             "long_name": "P_I,obs - P_leak"})
+    out["power_I_corrected_err"] = (dims, err, {"units": units})
+    k_edges = ex.edges_from_centres(expected["k"].values)
+    if "k_lo" in obs_i.variables and "k_hi" in obs_i.variables:
+        k_edges = np.concatenate([obs_i["k_lo"].values[:1], obs_i["k_hi"].values])
+    if expected.attrs.get("spherical_from") == "power_sph" and "power_sph" in obs_i.variables:
+        pi_sph = np.real(stokes_power(obs_i, "power_sph", "I", name).values)
+        pi_sph = np.where(np.isfinite(pi_sph), pi_sph, 0.0)
+        c_sph = expected["counts_sph"].values
+    else:
+        pi_sph, c_sph = ex.spherical_from_bins(p_i_val, counts, expected["k_par"].values,
+                                               expected["k_perp"].values, k_edges)
+    corr_sph, err_sph = ex.bias_correct(pi_sph, c_sph, expected["power_leak_sph"].values,
+                                        expected["power_leak_sph_err"].values)
+    out["power_I_obs_sph"] = ("k", pi_sph, {"units": units})
+    out["power_I_corrected_sph"] = ("k", corr_sph, {"units": units})
+    out["power_I_corrected_sph_err"] = ("k", err_sph, {"units": units})
+    out.attrs["source_I"] = name
+    out.attrs["correction_formula"] = (
+        "P_I,corr = P_I,obs - P_leak; sigma^2 = (|P_I,obs|/sqrt(N))^2 + sigma_leak^2")
+    return out

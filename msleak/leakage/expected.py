@@ -1,0 +1,170 @@
+"""Expected leakage in an observed field, and bias correction of an observed Stokes I PS.
+
+Expected leakage (method.md 7). With l = L_I / 100 the model fractional leakage (a scalar
+median, or a 2D map on the observed grid), the leakage power spectrum predicted for an
+observed field whose polarized power spectrum is P_P,obs is
+
+    P_leak = l^2 P_P,obs.
+
+Bias correction (beyond the paper). Like a noise-bias subtraction,
+
+    P_I,corr = P_I,obs - P_leak,
+
+with the uncertainty of each bin (N = number of 3D cells averaged into the bin)
+
+    sigma_PP    = |P_P,obs| / sqrt(N),        sigma_PI = |P_I,obs| / sqrt(N)
+    sigma_leak^2 = (l^2 sigma_PP)^2 + (2 l sigma_l P_P,obs)^2
+    sigma_corr^2 = sigma_PI^2 + sigma_leak^2
+
+The first two are the Gaussian sample variance of an average of N independent cells
+(exact for the auto-power of a Gaussian field; an approximation for cross-power); sigma_l
+is the uncertainty of the leakage model (see :func:`leakage_model_error`). The I and P
+errors are treated as independent. Bins with N = 0 get zero power and zero error and are
+flagged by the caller.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from msleak.errors import InputError
+
+__all__ = [
+    "expected_leakage_power",
+    "expected_leakage_error",
+    "sample_error",
+    "bias_correct",
+    "leakage_model_error",
+    "same_grid",
+    "edges_from_centres",
+    "spherical_from_bins",
+]
+
+
+def expected_leakage_power(p_p_obs: np.ndarray, L_model: np.ndarray | float) -> np.ndarray:
+    """P_leak = (L / 100)^2 P_P,obs, element by element (broadcasting).
+
+    Parameters
+    ----------
+    p_p_obs : ndarray (...)
+        Observed polarized power (any unit; the result has the same unit).
+    L_model : float or ndarray broadcastable to ``p_p_obs``
+        Model fractional leakage, percent.
+    """
+    L_model = np.asarray(L_model, dtype=np.float64)
+    if np.any(~np.isfinite(L_model)) or np.any(L_model < 0):
+        raise InputError("the leakage model L_I must be finite and non-negative")
+    return (L_model / 100.0) ** 2 * np.real(np.asarray(p_p_obs)).astype(np.float64)
+
+
+def sample_error(power: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Gaussian sample-variance error |P| / sqrt(N) of a bin average of N cells (0 if N = 0)."""
+    power = np.real(np.asarray(power)).astype(np.float64)
+    counts = np.broadcast_to(np.asarray(counts, dtype=np.float64), power.shape)
+    out = np.zeros(power.shape)
+    ok = counts > 0
+    out[ok] = np.abs(power[ok]) / np.sqrt(counts[ok])
+    return out
+
+
+def expected_leakage_error(p_p_obs: np.ndarray, counts: np.ndarray, L_model, L_err
+                           ) -> np.ndarray:
+    """Standard error of P_leak: sqrt((l^2 sigma_PP)^2 + (2 l sigma_l P_P)^2).
+
+    Parameters
+    ----------
+    p_p_obs, counts : ndarray (...)
+        Observed polarized power and the number of cells per bin.
+    L_model, L_err : float or ndarray broadcastable to ``p_p_obs``
+        Model leakage and its standard error, percent.
+    """
+    p_p = np.real(np.asarray(p_p_obs))
+    l = np.asarray(L_model, dtype=np.float64) / 100.0
+    sl = np.asarray(L_err, dtype=np.float64) / 100.0
+    s_pp = sample_error(p_p, counts)
+    return np.sqrt((l**2 * s_pp) ** 2 + (2.0 * l * sl * p_p) ** 2)
+
+
+def bias_correct(p_i_obs: np.ndarray, counts: np.ndarray, p_leak: np.ndarray,
+                 leak_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corrected Stokes I power P_I,obs - P_leak and its standard error.
+
+    Parameters
+    ----------
+    p_i_obs, counts, p_leak, leak_err : ndarray, same shape (...)
+        Observed Stokes I power, cells per bin, predicted leakage power and its error.
+
+    Returns
+    -------
+    corrected, error : ndarray (...)
+        Zero where ``counts`` is 0.
+    """
+    p_i = np.real(np.asarray(p_i_obs)).astype(np.float64)
+    counts = np.broadcast_to(np.asarray(counts), p_i.shape)
+    s_pi = sample_error(p_i, counts)
+    corrected = np.where(counts > 0, p_i - np.asarray(p_leak), 0.0)
+    error = np.where(counts > 0, np.sqrt(s_pi**2 + np.asarray(leak_err) ** 2), 0.0)
+    return corrected, error
+
+
+def leakage_model_error(fit_median_err: float, medians: np.ndarray | None = None) -> float:
+    """Uncertainty of a scalar leakage model (percent).
+
+    The statistical error of the fitted median combined in quadrature with the spread
+    (standard deviation, ddof = 1) of the medians over the fields of view, when more than
+    one is given: the spread says how much L_I depends on which field of view applies.
+    """
+    spread = 0.0
+    if medians is not None and np.size(medians) > 1:
+        spread = float(np.std(np.asarray(medians, dtype=float), ddof=1))
+    return float(np.hypot(fit_median_err, spread))
+
+
+def same_grid(k_par_a, k_perp_a, k_par_b, k_perp_b, rtol: float = 1e-6) -> bool:
+    """True if two (k_par, k_perp) grids have the same bin centres (to ``rtol``)."""
+    pairs = ((k_par_a, k_par_b), (k_perp_a, k_perp_b))
+    for a, b in pairs:
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        if a.shape != b.shape or not np.allclose(a, b, rtol=rtol, atol=0.0):
+            return False
+    return True
+
+
+def edges_from_centres(c: np.ndarray) -> np.ndarray:
+    """Bin edges halfway between increasing centres, extended by half a step at the ends."""
+    c = np.asarray(c, dtype=np.float64)
+    if c.size == 1:
+        return np.array([c[0] * 0.5, c[0] * 1.5]) if c[0] > 0 else np.array([-0.5, 0.5])
+    mid = 0.5 * (c[1:] + c[:-1])
+    return np.concatenate([[c[0] - (mid[0] - c[0])], mid, [c[-1] + (c[-1] - mid[-1])]])
+
+
+def spherical_from_bins(power2d: np.ndarray, counts: np.ndarray, k_par: np.ndarray,
+                        k_perp: np.ndarray, k_edges: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Counts-weighted spherical average of a cylindrical PS.
+
+    Each 2D bin (k_par, k_perp) goes, with weight ``counts``, into the spherical bin
+    holding k = sqrt(k_par^2 + k_perp^2).
+
+    Parameters
+    ----------
+    power2d, counts : ndarray (k_par, k_perp)
+    k_par, k_perp : ndarray (k_par,), (k_perp,)   Mpc^-1
+    k_edges : ndarray (nk + 1,)   Mpc^-1, increasing
+
+    Returns
+    -------
+    power_sph, counts_sph : ndarray (nk,)
+        Weighted means (0 where no bin falls) and the summed counts.
+    """
+    k = np.hypot(np.asarray(k_par)[:, None], np.asarray(k_perp)[None, :])
+    idx = np.digitize(k, k_edges) - 1
+    nk = len(k_edges) - 1
+    ok = (idx >= 0) & (idx < nk) & (np.asarray(counts) > 0)
+    wsum = np.bincount(idx[ok], weights=np.asarray(counts, float)[ok], minlength=nk)
+    psum = np.bincount(idx[ok], weights=(np.asarray(counts, float) * power2d)[ok],
+                       minlength=nk)
+    out = np.zeros(nk)
+    np.divide(psum, wsum, out=out, where=wsum > 0)
+    return out, wsum

@@ -1,0 +1,116 @@
+"""21-cm cosmology: redshift, comoving distances, k_perp / k_par and the wedge.
+
+All quantities are in Mpc (not h^-1 Mpc), s and Hz; the cosmology is an astropy
+cosmology chosen by name (default ``Planck18``).
+
+Formulas (method.md section 5)::
+
+    z       = f21 / nu - 1,                   f21 = 1420.405751768 MHz
+    X       = D_c(z)                          (Mpc per radian)
+    Y       = c (1 + z)^2 / (H0 f21 E(z))     (Mpc per Hz)
+    k_perp  = 2 pi |b| / D_c(z)               (|b| in wavelengths)
+    k_par   = 2 pi tau / Y = 2 pi tau H0 f21 E(z) / (c (1 + z)^2)
+    wedge   k_par = sin(theta) D_c(z) E(z) / (D_H (1 + z)) k_perp,  D_H = c / H0
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from msleak.errors import InputError
+
+__all__ = ["F21_HZ", "BOLTZMANN", "Cosmo", "get_cosmology", "cosmo_at", "wedge_slope",
+           "jy2_to_mk2_mpc3"]
+
+#: rest frequency of the 21-cm line, Hz
+F21_HZ = 1420.405751768e6
+#: Boltzmann constant, J/K
+BOLTZMANN = 1.380649e-23
+_C_KM_S = 299792.458
+_C_M_S = 299792458.0
+
+
+def get_cosmology(name: str = "Planck18"):
+    """An astropy cosmology by name (``Planck18``, ``Planck15``, ``WMAP9``, ...)."""
+    from astropy import cosmology as apc
+
+    available = list(apc.realizations.available)
+    if name not in available:
+        raise InputError(f"unknown cosmology {name!r}: use one of {', '.join(available)}")
+    return getattr(apc, name)
+
+
+@dataclass(frozen=True)
+class Cosmo:
+    """The cosmological conversion factors at one redshift (SI-free: Mpc, s, Hz)."""
+
+    name: str
+    z: float
+    freq_hz: float
+    dc_mpc: float        #: comoving distance D_c(z), Mpc
+    efunc: float         #: E(z) = H(z) / H0
+    h0_km_s_mpc: float   #: H0, km/s/Mpc
+    dh_mpc: float        #: Hubble distance c / H0, Mpc
+
+    @property
+    def x_mpc_per_rad(self) -> float:
+        return self.dc_mpc
+
+    @property
+    def y_mpc_per_hz(self) -> float:
+        return self.dh_mpc * (1 + self.z) ** 2 / (F21_HZ * self.efunc)
+
+    def k_perp(self, b_lambda):
+        """k_perp (Mpc^-1) of baselines ``b_lambda`` (wavelengths)."""
+        return 2 * np.pi * np.asarray(b_lambda, dtype=float) / self.dc_mpc
+
+    def k_par(self, delay_s):
+        """k_par (Mpc^-1) of delays ``delay_s`` (s); the sign of the delay is kept."""
+        return 2 * np.pi * np.asarray(delay_s, dtype=float) / self.y_mpc_per_hz
+
+    def wedge_slope(self, theta_deg: float) -> float:
+        """k_par / k_perp of the wedge line for a source at ``theta_deg`` from the centre."""
+        return (np.sin(np.radians(theta_deg)) * self.dc_mpc * self.efunc
+                / (self.dh_mpc * (1 + self.z)))
+
+
+def cosmo_at(freq_hz: float, name: str = "Planck18") -> Cosmo:
+    """Conversion factors for the 21-cm line observed at ``freq_hz``."""
+    if not (freq_hz > 0 and freq_hz < F21_HZ):
+        raise InputError(f"frequency {freq_hz / 1e6:.3f} MHz is not below the 21-cm rest "
+                         f"frequency {F21_HZ / 1e6:.3f} MHz: no 21-cm redshift")
+    import astropy.units as u
+
+    c = get_cosmology(name)
+    z = F21_HZ / freq_hz - 1
+    h0 = c.H0.to_value(u.km / u.s / u.Mpc)
+    return Cosmo(name=name, z=z, freq_hz=float(freq_hz),
+                 dc_mpc=float(c.comoving_distance(z).to_value("Mpc")),
+                 efunc=float(c.efunc(z)), h0_km_s_mpc=float(h0), dh_mpc=_C_KM_S / h0)
+
+
+def wedge_slope(cosmo: Cosmo, theta_deg: float) -> float:
+    """Shortcut for :meth:`Cosmo.wedge_slope`."""
+    return cosmo.wedge_slope(theta_deg)
+
+
+def jy2_to_mk2_mpc3(cosmo: Cosmo, beam_area_sr: float, bandwidth_hz: float) -> float:
+    """Factor turning a delay power ``|V~|^2 / window_norm`` (Jy^2) into mK^2 Mpc^3.
+
+    With ``V~ = (1/N) sum_nu w V exp(...)`` and the continuous transform
+    ``Vt = N dnu V~`` (Jy Hz), the standard normalisation is::
+
+        P = |Vt|^2 (lambda^2 / (2 k_B))^2 X^2 Y / (Omega B_eff),  B_eff = B window_norm
+
+    so ``P = (|V~|^2 / window_norm) * B * (1e-26 lambda^2 / (2 k_B))^2 X^2 Y / Omega * 1e6``
+    with B = N dnu the bandwidth, lambda = c / nu_centre, Omega the beam area (sr), 1e-26
+    converting Jy to W m^-2 Hz^-1 and 1e6 K^2 to mK^2.
+    """
+    if not beam_area_sr > 0:
+        raise InputError(f"beam area must be positive (sr), got {beam_area_sr}")
+    lam = _C_M_S / cosmo.freq_hz
+    jy_to_k_sr = 1e-26 * lam ** 2 / (2 * BOLTZMANN)
+    return (bandwidth_hz * jy_to_k_sr ** 2 * cosmo.x_mpc_per_rad ** 2 * cosmo.y_mpc_per_hz
+            / beam_area_sr * 1e6)
