@@ -1,0 +1,125 @@
+"""Primary beams: Jones matrices per station, time, channel and direction, and Mueller maps.
+
+Models (:func:`load_beam`):
+
+``everybeam``
+    The LOFAR HBA station beam of EveryBeam (Hamaker element x tile x station array
+    factors) from the MS's LOFAR subtables, evaluated by msleak's vectorised evaluator
+    (:mod:`msleak.beam.lofar_fast`, equal to EveryBeam to ~1e-7).  Other telescopes
+    EveryBeam's Python bindings load from an MS (OSKAR, MWA, ...) and LOFAR LBA fall back
+    to ``everybeam-direct``.
+``everybeam-direct``
+    EveryBeam's own ``station_response``, one call per direction (slow, the reference).
+``dipole``
+    Analytic crossed dipoles times a scalar station factor, for any MS
+    (:mod:`msleak.beam.dipole`).
+``none``
+    The identity.
+
+All return ``J[station, time, channel, direction, 2, 2]`` in the sky (North, East) basis
+(rows: feeds), zero below the horizon; ``centre_correction=True`` gives ``J(s0)^-1 J(s)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+from msleak.beam.base import BEAM_NAMES, BeamModel, BeamName, IdentityBeam, invert_2x2
+from msleak.beam.mueller import jones_to_mueller, leakage, polarized_beam, to_db
+from msleak.errors import InputError
+
+__all__ = [
+    "BeamName", "BeamModel", "BEAM_NAMES", "load_beam", "IdentityBeam", "invert_2x2",
+    "jones_to_mueller", "polarized_beam", "leakage", "to_db",
+]
+
+log = logging.getLogger(__name__)
+
+
+def load_beam(model: BeamName, ms: str | os.PathLike, **options) -> BeamModel:
+    """The beam model ``model`` for the stations and field of ``ms``.
+
+    Parameters
+    ----------
+    model : {'everybeam', 'everybeam-direct', 'dipole', 'none'}
+    ms : path
+        Measurement Set (its first FIELD row gives the phase centre).
+    **options
+        ``everybeam``/``everybeam-direct``: ``element_model`` (EveryBeam element response
+        model name, default Hamaker for LOFAR).  ``dipole``: ``factor``
+        ('airy' | 'gaussian' | 'none'), ``diameter_m``, ``feed_angle_deg``,
+        ``ground_plane_height_m`` (see :class:`msleak.beam.dipole.DipoleBeam`).
+
+    Raises
+    ------
+    InputError
+        Unknown model or options, or an MS the model cannot describe (the message names
+        ``--beam dipole`` when EveryBeam cannot read it).
+    """
+    from msleak.io.ms import check_ms, read_antennas, read_fields
+
+    ms = check_ms(ms)
+    if model not in BEAM_NAMES:
+        raise InputError(f"unknown beam {model!r}: use one of {', '.join(BEAM_NAMES)}")
+    if model == "none":
+        _no_options(model, options)
+        antennas = read_antennas(ms)
+        field = read_fields(ms)[0]
+        return IdentityBeam(len(antennas), (field.ra, field.dec), antennas.names)
+    if model == "dipole":
+        from msleak.beam.dipole import DipoleBeam
+
+        allowed = {"factor", "diameter_m", "feed_angle_deg", "ground_plane_height_m"}
+        _check_options(model, options, allowed)
+        return DipoleBeam.from_ms(ms, **options)
+    _check_options(model, options, {"element_model"})
+    element_model = options.get("element_model", "default")
+    if model == "everybeam":
+        fast = _try_fast(ms, element_model)
+        if fast is not None:
+            return fast
+    from msleak.beam.everybeam_direct import EveryBeamDirect
+
+    return EveryBeamDirect(ms, element_model=element_model)
+
+
+def _try_fast(ms: Path, element_model: str):
+    """The fast LOFAR evaluator if the MS is a LOFAR HBA MS, else None (or InputError)."""
+    from msleak.beam.everybeam_direct import load_everybeam_telescope
+    from msleak.beam.lofar_tables import NO_LOFAR_HINT, read_lofar_array
+    from msleak.io.ms import read_telescope_name
+
+    telescope = read_telescope_name(ms).upper()
+    lofar_tables = (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists()
+    if telescope != "LOFAR" or not lofar_tables:
+        # not a LOFAR MS: EveryBeam may still know the telescope (OSKAR, MWA, ...)
+        if telescope == "LOFAR":
+            raise InputError(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam; "
+                             f"{NO_LOFAR_HINT}")
+        load_everybeam_telescope(ms, element_model)  # raises InputError naming --beam dipole
+        log.info("%s: telescope %r is not LOFAR: using EveryBeam directly (slow)", ms,
+                 telescope)
+        return None
+    if element_model not in ("default", "hamaker"):
+        log.info("element model %r: using EveryBeam directly (slow)", element_model)
+        return None
+    array = read_lofar_array(ms)
+    if any(f.name == "LBA" for s in array.stations for f in s.fields):
+        log.info("%s has LBA fields: using EveryBeam directly (slow)", ms)
+        return None
+    from msleak.beam.lofar_fast import LofarFastBeam
+
+    return LofarFastBeam(array)
+
+
+def _no_options(model: str, options: dict) -> None:
+    _check_options(model, options, set())
+
+
+def _check_options(model: str, options: dict, allowed: set) -> None:
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise InputError(f"beam {model!r} takes no option {', '.join(unknown)}"
+                         + (f" (allowed: {', '.join(sorted(allowed))})" if allowed else ""))

@@ -1,0 +1,175 @@
+"""The beam interface every model implements, the phase-centre correction, the identity.
+
+Conventions
+-----------
+A beam Jones matrix ``J[p, i]`` maps the sky electric field in the (North, East) basis of
+the direction (columns ``i``: 0 = North, 1 = East, as EveryBeam returns them with its
+parallactic rotation on) to the voltages of station ``p``'s two feeds (rows: X, Y or R, L).
+Directions below a station's horizon get a zero matrix (never NaN).
+
+Phase-centre correction (method.md section 4): with ``centre_correction=True``
+:meth:`BeamModel.jones` returns ``J_p(s0)^-1 J_p(s)`` per station, time and channel, where
+``s0`` is the MS phase centre, so that ``J_p(s0)^-1 V_pq J_q(s0)^-H`` equals the sum over
+sources of ``(J0p^-1 Jp) B (J0q^-1 Jq)^H``.  A singular ``J_p(s0)`` (phase centre below the
+horizon) gives a zero inverse and a warning.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+from typing import Literal
+
+import numpy as np
+
+from msleak.errors import InputError
+
+__all__ = ["BeamName", "BeamModel", "IdentityBeam", "invert_2x2", "BEAM_NAMES"]
+
+log = logging.getLogger(__name__)
+
+BeamName = Literal["everybeam", "everybeam-direct", "dipole", "none"]
+BEAM_NAMES = ("everybeam", "everybeam-direct", "dipole", "none")
+
+
+def invert_2x2(j: np.ndarray, *, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of a stack of 2x2 matrices (..., 2, 2); singular ones give zeros.
+
+    Returns
+    -------
+    inverse : (..., 2, 2) array
+    singular : (...) bool array
+        Where ``|det| <= rcond * max|J|^2`` (including all-zero matrices).
+    """
+    j = np.asarray(j)
+    det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]
+    scale = np.max(np.abs(j), axis=(-2, -1)) ** 2
+    singular = ~(np.abs(det) > rcond * scale)
+    safe = np.where(singular, 1.0, det)
+    inv = np.empty_like(j)
+    inv[..., 0, 0] = j[..., 1, 1] / safe
+    inv[..., 0, 1] = -j[..., 0, 1] / safe
+    inv[..., 1, 0] = -j[..., 1, 0] / safe
+    inv[..., 1, 1] = j[..., 0, 0] / safe
+    inv[singular] = 0
+    return inv, singular
+
+
+class BeamModel(abc.ABC):
+    """A primary-beam model of the stations of one Measurement Set.
+
+    Attributes
+    ----------
+    name : str
+        The model name (``everybeam``, ``everybeam-direct``, ``dipole``, ``none``).
+    n_stations : int
+        Number of stations (ANTENNA rows).
+    station_names : list of str
+    phase_centre : (float, float)
+        J2000 (ra, dec) in rad of the direction ``jones_centre`` and the correction use.
+    """
+
+    name: str = ""
+
+    def __init__(self, n_stations: int, phase_centre: tuple[float, float],
+                 station_names: list[str] | None = None):
+        self.n_stations = int(n_stations)
+        self.phase_centre = (float(phase_centre[0]), float(phase_centre[1]))
+        self.station_names = list(station_names) if station_names is not None else [
+            str(i) for i in range(self.n_stations)]
+
+    # -- to implement ------------------------------------------------------------------
+    @abc.abstractmethod
+    def _jones(self, time: np.ndarray, freq: np.ndarray, ra: np.ndarray, dec: np.ndarray,
+               stations: np.ndarray, dtype) -> np.ndarray:
+        """Uncorrected Jones (nstation, ntime, nchan, ndir, 2, 2) of ``dtype``, checked inputs."""
+
+    # -- public ---------------------------------------------------------------------------
+    def jones(self, time_mjd_s, freq_hz, ra, dec, *, stations=None,
+              centre_correction: bool = False, dtype=np.complex128) -> np.ndarray:
+        """Beam Jones matrices.
+
+        Parameters
+        ----------
+        time_mjd_s : (ntime,) array
+            UTC as MJD seconds (the MS TIME column).
+        freq_hz : (nchan,) array
+            Frequencies, Hz.
+        ra, dec : (ndir,) arrays
+            J2000 directions, rad.
+        stations : (nstation,) int array, optional
+            ANTENNA rows; all stations by default.
+        centre_correction : bool
+            Return ``J(s0)^-1 J(s)`` (s0 the phase centre) instead of ``J(s)``.
+        dtype : numpy complex dtype
+            Of the result.
+
+        Returns
+        -------
+        (nstation, ntime, nchan, ndir, 2, 2) complex array
+            Rows: feeds (X, Y); columns: sky (North, East).  Zero below the horizon.
+        """
+        time, freq, ra, dec, stations = self._check(time_mjd_s, freq_hz, ra, dec, stations)
+        dtype = np.dtype(dtype)
+        if dtype.kind != "c":
+            raise InputError(f"beam: dtype must be complex, not {dtype}")
+        if not centre_correction:
+            return self._jones(time, freq, ra, dec, stations, dtype)
+        from msleak.beam.lofar_kernels import apply_left_inverse
+
+        ra0, dec0 = self.phase_centre
+        # the centre is evaluated in the same call, so both share one coordinate conversion
+        both = self._jones(time, freq, np.append(ra, ra0), np.append(dec, dec0), stations,
+                           np.complex128)
+        inv, singular = invert_2x2(both[..., -1, :, :])
+        if singular.any():
+            log.warning("beam at the phase centre is singular (below the horizon?) for %d "
+                        "station/time/channel samples; their corrected beam is zero",
+                        int(singular.sum()))
+        apply_left_inverse(inv, both)  # in place; the centre column becomes the identity
+        return both[..., :-1, :, :].astype(dtype, copy=False)
+
+    def jones_centre(self, time_mjd_s, freq_hz, *, stations=None) -> np.ndarray:
+        """Jones (nstation, ntime, nchan, 2, 2) towards the phase centre (uncorrected)."""
+        ra0, dec0 = self.phase_centre
+        return self.jones(time_mjd_s, freq_hz, [ra0], [dec0], stations=stations)[..., 0, :, :]
+
+    # -- helpers -------------------------------------------------------------------------
+    def _check(self, time, freq, ra, dec, stations):
+        time = np.atleast_1d(np.asarray(time, dtype=float))
+        freq = np.atleast_1d(np.asarray(freq, dtype=float))
+        ra = np.atleast_1d(np.asarray(ra, dtype=float))
+        dec = np.atleast_1d(np.asarray(dec, dtype=float))
+        if time.ndim != 1 or freq.ndim != 1 or ra.ndim != 1 or ra.shape != dec.shape:
+            raise InputError("beam: time and freq must be 1-D, ra and dec 1-D of equal length")
+        if not (np.all(np.isfinite(time)) and np.all(np.isfinite(freq))
+                and np.all(np.isfinite(ra)) and np.all(np.isfinite(dec))):
+            raise InputError("beam: time, frequency and direction values must be finite")
+        if np.any(freq <= 0):
+            raise InputError("beam: frequencies must be positive (Hz)")
+        if np.any(np.abs(dec) > np.pi / 2 + 1e-12):
+            raise InputError("beam: declinations must lie in [-pi/2, pi/2] rad")
+        dec = np.clip(dec, -np.pi / 2, np.pi / 2)
+        if stations is None:
+            stations = np.arange(self.n_stations)
+        stations = np.atleast_1d(np.asarray(stations))
+        if stations.dtype.kind not in "iu" or stations.ndim != 1:
+            raise InputError("beam: stations must be a 1-D array of ANTENNA row numbers")
+        if stations.size and (stations.min() < 0 or stations.max() >= self.n_stations):
+            raise InputError(f"beam: station index out of range 0..{self.n_stations - 1}")
+        return time, freq, ra, dec, stations.astype(np.int64)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name!r}: {self.n_stations} stations>"
+
+
+class IdentityBeam(BeamModel):
+    """The ``none`` beam: the identity everywhere (no horizon)."""
+
+    name = "none"
+
+    def _jones(self, time, freq, ra, dec, stations, dtype):
+        out = np.zeros((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
+        out[..., 0, 0] = 1
+        out[..., 1, 1] = 1
+        return out

@@ -1,0 +1,196 @@
+"""An analytic beam for any Measurement Set: crossed dipoles times a scalar station factor.
+
+Formulas (all vectors in ITRF; ``d`` the direction, ``n``, ``e`` its sky North and East
+unit vectors as in :func:`msleak.beam.coords.sky_basis`; ``N``, ``E``, ``U`` the station's
+local geodetic north, east and up; ``alpha`` the feed angle from north through east)::
+
+    feed X:  x = cos(alpha) N + sin(alpha) E          feed Y:  y = -sin(alpha) N + cos(alpha) E
+
+    J = g(d, f) A(theta, f) [[x.n, x.e],
+                             [y.n, y.e]]
+
+The matrix is the projection of each ideal short dipole on the sky plane: the voltage of a
+dipole along ``x`` from a field ``E_n n + E_e e`` is ``x.(E_n n + E_e e)``.  At the zenith
+with ``alpha = 0`` it is the identity (X along North, Y along East, the IAU convention).
+
+* ground plane (``ground_plane_height_m = h``): ``g = 2 sin(2 pi f h cos(z) / c)`` with
+  ``cos z = d.U``, the sum of the direct wave and its image in a perfectly conducting plane
+  (reflection -1) at depth ``h``; without a ground plane ``g = 1``;
+* station factor, ``theta`` the angle between ``d`` and the pointing (the MS DELAY_DIR,
+  else PHASE_DIR), ``D`` the station diameter:
+
+  - ``airy``: ``A = 2 J1(u) / u``, ``u = pi D f sin(theta) / c`` (uniformly illuminated disc);
+  - ``gaussian``: ``A = exp(-2 ln 2 theta^2 / theta_F^2)`` with power FWHM
+    ``theta_F = 1.02 c / (f D)`` (so ``A^2`` is half at ``theta = theta_F / 2``);
+  - ``none``: ``A = 1``.
+
+Directions below the station's horizon (``d.U < 0``) get a zero matrix.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Literal
+
+import numpy as np
+
+from msleak.beam.base import BeamModel
+from msleak.beam.coords import (clip_pole, enu_basis, exact_j2000_to_itrf, itrf_map,
+                                radec_to_unit, sky_basis)
+from msleak.errors import InputError
+
+__all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
+
+log = logging.getLogger(__name__)
+
+StationFactor = Literal["airy", "gaussian", "none"]
+_C = 299792458.0
+_NCP = np.array([0.0, 0.0, 1.0])
+
+
+def station_factor(kind: StationFactor, theta: np.ndarray, freq: np.ndarray,
+                   diameter_m: float) -> np.ndarray:
+    """Scalar station voltage pattern (nchan, ndir) for angles ``theta`` (ndir,) rad."""
+    theta = np.asarray(theta, dtype=float)
+    freq = np.asarray(freq, dtype=float)
+    if kind == "none":
+        return np.ones((freq.size, theta.size))
+    if diameter_m <= 0:
+        raise InputError(f"station diameter must be positive for a {kind} station factor, "
+                         f"got {diameter_m} m")
+    if kind == "airy":
+        from scipy.special import j1
+
+        u = np.pi * diameter_m * freq[:, None] * np.sin(theta)[None, :] / _C
+        small = np.abs(u) < 1e-8
+        safe = np.where(small, 1.0, u)
+        return np.where(small, 1.0 - u ** 2 / 8, 2 * j1(safe) / safe)
+    if kind == "gaussian":
+        fwhm = 1.02 * _C / (freq[:, None] * diameter_m)
+        return np.exp(-2 * np.log(2) * (theta[None, :] / fwhm) ** 2)
+    raise InputError(f"unknown station factor {kind!r}: use airy, gaussian or none")
+
+
+def dipole_jones(d: np.ndarray, north: np.ndarray, east: np.ndarray, enu: np.ndarray,
+                 freq: np.ndarray, *, feed_angle_rad: float = 0.0,
+                 ground_plane_height_m: float | None = None) -> np.ndarray:
+    """Crossed-dipole Jones (nchan, ndir, 2, 2) of one station, without station factor.
+
+    Parameters
+    ----------
+    d, north, east : (ndir, 3) arrays
+        ITRF direction and its sky basis.
+    enu : (3, 3) array
+        Rows: the station's local east, north, up (ITRF unit vectors).
+    freq : (nchan,) array, Hz
+    feed_angle_rad : float
+        Angle of the X dipole from local north through east.
+    ground_plane_height_m : float, optional
+        Height of the dipoles above a perfectly conducting ground plane.
+    """
+    e_loc, n_loc, up = enu
+    ca, sa = np.cos(feed_angle_rad), np.sin(feed_angle_rad)
+    x = ca * n_loc + sa * e_loc
+    y = -sa * n_loc + ca * e_loc
+    proj = np.empty((len(d), 2, 2))
+    proj[:, 0, 0] = north @ x
+    proj[:, 0, 1] = east @ x
+    proj[:, 1, 0] = north @ y
+    proj[:, 1, 1] = east @ y
+    cosz = d @ up
+    proj[cosz < 0] = 0
+    out = np.broadcast_to(proj, (freq.size, len(d), 2, 2)).astype(complex)
+    if ground_plane_height_m is not None:
+        g = 2 * np.sin(2 * np.pi * freq[:, None] * ground_plane_height_m * cosz[None, :] / _C)
+        out = out * g[:, :, None, None]
+    return out
+
+
+class DipoleBeam(BeamModel):
+    """The analytic ``dipole`` beam of every station of an MS (see module notes).
+
+    Parameters
+    ----------
+    positions : (nstation, 3) array
+        ITRF station positions, m.
+    diameters : (nstation,) array
+        Station diameters, m (used by the station factor).
+    pointing : (ra, dec)
+        J2000 pointing of the station factor, rad.
+    phase_centre : (ra, dec)
+        J2000 phase centre, rad.
+    station_names : list of str, optional
+    factor : {'airy', 'gaussian', 'none'}
+    feed_angle_deg : float
+        X dipole angle from local north through east, deg.
+    ground_plane_height_m : float, optional
+        Dipole height above a ground plane; free-space dipoles if None.
+    diameter_m : float, optional
+        Overrides ``diameters`` for every station.
+    """
+
+    name = "dipole"
+
+    def __init__(self, positions, diameters, pointing, phase_centre, station_names=None, *,
+                 factor: StationFactor = "airy", feed_angle_deg: float = 0.0,
+                 ground_plane_height_m: float | None = None, diameter_m: float | None = None):
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+        super().__init__(len(positions), phase_centre, station_names)
+        if factor not in ("airy", "gaussian", "none"):
+            raise InputError(f"unknown station factor {factor!r}: use airy, gaussian or none")
+        diam = np.asarray(diameters, dtype=float).reshape(-1)
+        if diameter_m is not None:
+            if diameter_m <= 0:
+                raise InputError(f"station diameter must be positive, got {diameter_m} m")
+            diam = np.full(len(positions), float(diameter_m))
+        if factor != "none" and np.any(~(diam > 0)):
+            raise InputError("the MS gives no station diameter (DISH_DIAMETER <= 0); pass "
+                             "a diameter (--diameter M) or use station factor 'none'")
+        if ground_plane_height_m is not None and ground_plane_height_m <= 0:
+            raise InputError("ground-plane height must be positive (m)")
+        self.positions = positions
+        self.diameters = diam
+        self.pointing = (float(pointing[0]), float(pointing[1]))
+        self.factor = factor
+        self.feed_angle = np.radians(feed_angle_deg)
+        self.ground_plane_height_m = ground_plane_height_m
+        self._enu = np.array([enu_basis(p) for p in positions])
+        self._centre = positions.mean(axis=0)
+
+    @classmethod
+    def from_ms(cls, ms, **options) -> "DipoleBeam":
+        """The dipole beam of the stations of ``ms`` (pointing: FIELD DELAY_DIR)."""
+        from msleak.io.ms import open_table, read_antennas, read_fields
+
+        antennas = read_antennas(ms)
+        field = read_fields(ms)[0]
+        from pathlib import Path
+
+        with open_table(Path(ms) / "FIELD") as t:
+            pointing = np.asarray(t.getcell("DELAY_DIR", 0), float).reshape(-1, 2)[0] \
+                if "DELAY_DIR" in t.colnames() else (field.ra, field.dec)
+        return cls(antennas.positions, antennas.diameter, tuple(pointing),
+                   (field.ra, field.dec), antennas.names, **options)
+
+    def _jones(self, time, freq, ra, dec, stations, dtype):
+        out = np.zeros((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
+        u = radec_to_unit(ra, clip_pole(dec))
+        p = radec_to_unit(self.pointing[0], clip_pole(self.pointing[1]))
+        diam_cache: dict[float, np.ndarray] = {}
+        for it, t in enumerate(time):
+            fitmap = itrf_map(float(t), np.vstack([u, p]), position_itrf=self._centre)
+            d = fitmap(u)
+            ncp = fitmap(_NCP) if fitmap.covers(_NCP) else exact_j2000_to_itrf(
+                float(t), 0.0, np.pi / 2, position_itrf=self._centre)[0]
+            north, east = sky_basis(d, ncp)
+            theta = np.arccos(np.clip(d @ fitmap(p), -1, 1))
+            diam_cache.clear()
+            for si, s in enumerate(stations):
+                diam = float(self.diameters[s])
+                if diam not in diam_cache:
+                    diam_cache[diam] = station_factor(self.factor, theta, freq, diam)
+                j = dipole_jones(d, north, east, self._enu[s], freq,
+                                 feed_angle_rad=self.feed_angle,
+                                 ground_plane_height_m=self.ground_plane_height_m)
+                out[si, it] = j * diam_cache[diam][:, :, None, None]
+        return out

@@ -1,0 +1,93 @@
+"""Mueller matrices of beam Jones matrices, the polarized beam and the Stokes I leakage.
+
+For stations p and q with Jones matrices ``J_p``, ``J_q`` mapping the sky electric field in
+the (North, East) basis to feed voltages, the correlations of a source with brightness
+matrix ``B`` are ``J_p B J_q^H``.  Stacking 2x2 matrices row by row (``XX, XY, YX, YY``),
+``vec(J_p B J_q^H) = (J_p kron conj(J_q)) vec(B)``, so the Mueller matrix mapping sky Stokes
+(I, Q, U, V) to apparent Stokes is::
+
+    M = S_feed^-1 (J_p kron conj(J_q)) S_sky
+
+with ``S`` from :mod:`msleak.conventions` (correlations = S @ (I, Q, U, V)); the sky side
+is always the linear (North, East) basis, the output side the feeds' own (linear or
+circular) correlations.  For ``J_p = J_q`` the matrix is real.
+
+Figures of merit (method.md sections 4 and 8, 0-based indices)::
+
+    polarized beam   sqrt(M[1,1]^2 + M[2,2]^2)
+    leakage          sqrt(M[0,1]^2 + M[0,2]^2) / M[0,0]      (Q, U -> I, fraction of I)
+
+Both are computed from the real part of ``M``.  dB values are ``10 log10`` (Mueller
+entries are power-like) of the quantity divided by its value at the phase centre for the
+polarized beam; the leakage is already a ratio and is shown as ``10 log10(leakage)`` of the
+phase-centre-corrected beam (it is zero, -inf dB, at the centre).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from msleak.conventions import FeedType, stokes_to_correlations_matrix
+
+__all__ = ["jones_to_mueller", "polarized_beam", "polarized_beam_invariant", "leakage",
+           "to_db", "DB_FLOOR"]
+
+#: dB values are clipped below at this level (zero leakage at the phase centre).
+DB_FLOOR = -100.0
+
+
+def jones_to_mueller(jp: np.ndarray, jq: np.ndarray | None = None,
+                     feed: FeedType = "linear") -> np.ndarray:
+    """Mueller matrices (..., 4, 4) of Jones matrices (..., 2, 2).
+
+    Parameters
+    ----------
+    jp : (..., 2, 2) complex array
+        Station p, sky (North, East) basis to feeds.
+    jq : (..., 2, 2) complex array, optional
+        Station q (default: ``jp``, the auto-correlation Mueller matrix).
+    feed : {'linear', 'circular'}
+        The feeds' correlation convention (output side).
+    """
+    jp = np.asarray(jp)
+    jq = jp if jq is None else np.asarray(jq)
+    kron = np.einsum("...ij,...kl->...ikjl", jp, np.conj(jq))
+    kron = kron.reshape(*kron.shape[:-4], 4, 4)
+    s_sky = stokes_to_correlations_matrix("linear")
+    s_feed_inv = np.linalg.inv(stokes_to_correlations_matrix(feed))
+    return s_feed_inv @ kron @ s_sky
+
+
+def polarized_beam(mueller: np.ndarray) -> np.ndarray:
+    """``sqrt(M[1,1]^2 + M[2,2]^2)`` (...) from Mueller matrices (..., 4, 4)."""
+    m = np.real(mueller)
+    return np.sqrt(m[..., 1, 1] ** 2 + m[..., 2, 2] ** 2)
+
+
+def polarized_beam_invariant(mueller: np.ndarray) -> np.ndarray:
+    """``sqrt(M11^2 + M12^2 + M21^2 + M22^2)`` (...): unchanged by a rotation of the Q, U frame.
+
+    Equal to :func:`polarized_beam` when the Q, U block has no rotation; near a celestial
+    pole, where the local (North, East) frame turns with position angle, it shows the beam
+    without the ``cos 2 psi`` pattern of the frame rotation.
+    """
+    m = np.real(mueller)
+    return np.sqrt(m[..., 1, 1] ** 2 + m[..., 1, 2] ** 2 + m[..., 2, 1] ** 2 + m[..., 2, 2] ** 2)
+
+
+def leakage(mueller: np.ndarray) -> np.ndarray:
+    """``sqrt(M[0,1]^2 + M[0,2]^2) / M[0,0]`` (...); NaN where ``M[0,0] = 0`` (no beam)."""
+    m = np.real(mueller)
+    num = np.sqrt(m[..., 0, 1] ** 2 + m[..., 0, 2] ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(m[..., 0, 0] != 0, num / np.where(m[..., 0, 0] != 0, m[..., 0, 0], 1),
+                        np.nan)
+
+
+def to_db(x: np.ndarray, reference: float | np.ndarray = 1.0, floor: float = DB_FLOOR
+          ) -> np.ndarray:
+    """``10 log10(x / reference)`` clipped below at ``floor``; NaN stays NaN."""
+    x = np.asarray(x, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        db = 10 * np.log10(np.abs(x) / reference)
+    return np.where(np.isnan(db), np.nan, np.maximum(db, floor))

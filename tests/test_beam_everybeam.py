@@ -1,0 +1,171 @@
+"""The LOFAR beam: msleak's fast evaluator against EveryBeam, correction, physics, the NCP."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from msleak.beam import jones_to_mueller, leakage, load_beam
+from msleak.beam.coords import exact_j2000_to_itrf, itrf_map, radec_to_unit
+from msleak.beam.everybeam_direct import EveryBeamDirect
+from msleak.beam.lofar_fast import LofarFastBeam
+from msleak.beam.maps import sin_grid
+from msleak.errors import InputError
+from msleak.io.ms import read_spectral_windows, read_times
+
+pytest.importorskip("everybeam")
+
+
+@pytest.fixture(scope="module")
+def lofar_mss(tmp_path_factory):
+    """3C196 and NCP LOFAR MSs (CS001-CS003 HBA0/HBA1, 2 h, 4 channels), built once."""
+    from msleak.telescope.simulate import simulate_ms
+
+    root = tmp_path_factory.mktemp("beam_ms")
+    common = dict(duration_h=2.0, interval_s=3600.0, freq_min_hz=150e6, nchan=4,
+                  chan_width_hz=195312.5, stations="CS00[1-3]HBA*")
+    return {"3c196": simulate_ms(root / "3c196.ms", field="3c196", **common),
+            "ncp": simulate_ms(root / "ncp.ms", field="ncp", **common)}
+
+
+@pytest.fixture(scope="module")
+def beams(lofar_mss):
+    return {name: (load_beam("everybeam", ms), EveryBeamDirect(ms))
+            for name, ms in lofar_mss.items()}
+
+
+def _grid(beam, fov=15.0, npix=7):
+    ra0, dec0 = beam.phase_centre
+    _, _, ra, dec = sin_grid(ra0, dec0, fov, npix)
+    return ra.ravel(), dec.ravel()
+
+
+def _max_rel(a, b):
+    """max |a - b| / max |b| per (station, time, channel), the worst of those."""
+    scale = np.abs(b).max(axis=(-3, -2, -1), keepdims=True)
+    return float((np.abs(a - b) / scale).max())
+
+
+@pytest.mark.parametrize("field", ["3c196", "ncp"])
+def test_fast_evaluator_matches_everybeam(beams, lofar_mss, field):
+    fast, direct = beams[field]
+    assert isinstance(fast, LofarFastBeam)
+    ra, dec = _grid(fast)
+    t = read_times(lofar_mss[field])
+    times = np.array([t[0], t[-1], t[0] + 5 * 3600.0])
+    freq = np.concatenate([read_spectral_windows(lofar_mss[field])[0].freq, [125e6, 175e6]])
+    stations = np.array([0, 3, 5])
+    jf = fast.jones(times, freq, ra, dec, stations=stations)
+    jd = direct.jones(times, freq, ra, dec, stations=stations)
+    assert jf.shape == (3, 3, 6, ra.size, 2, 2)
+    assert np.all(np.abs(jd).max(axis=(-3, -2, -1)) > 0.1)
+    assert _max_rel(jf, jd) < 1e-5
+
+
+def test_coordinates_match_everybeams_own_conversion(beams):
+    """Against EveryBeam's (ra, dec) call, which converts directions itself (complex64)."""
+    fast, direct = beams["3c196"]
+    ra, dec = _grid(fast, npix=3)
+    t = 4.86234e9
+    jf = fast.jones([t], [150e6], ra, dec, stations=[1])[0, 0, 0]
+    ref = np.array([direct.telescope.station_response(t, 1, 150e6, float(a), float(d))
+                    for a, d in zip(ra, dec)])
+    assert np.abs(jf - ref).max() / np.abs(ref).max() < 1e-5
+
+
+def test_fitted_itrf_map_matches_casacore():
+    ra0, dec0 = np.radians(123.4), np.radians(48.2)
+    _, _, ra, dec = sin_grid(ra0, dec0, 15.0, 5)
+    u = radec_to_unit(ra.ravel(), dec.ravel())
+    for t in (4.86234e9, 4.86234e9 + 7e6):
+        fitted = itrf_map(t, u)(u)
+        exact = exact_j2000_to_itrf(t, ra.ravel(), dec.ravel())
+        assert np.linalg.norm(fitted - exact, axis=1).max() < 1e-8
+
+
+def test_phase_centre_correction(beams):
+    fast, _ = beams["3c196"]
+    ra0, dec0 = fast.phase_centre
+    ra, dec = _grid(fast, npix=3)
+    times, freq = [4.86234e9, 4.86235e9], [150e6, 152e6]
+    raw = fast.jones(times, freq, ra, dec)
+    j0 = fast.jones_centre(times, freq)
+    corrected = fast.jones(times, freq, np.append(ra, ra0), np.append(dec, dec0),
+                           centre_correction=True)
+    np.testing.assert_allclose(corrected[..., -1, :, :],
+                               np.broadcast_to(np.eye(2), corrected[..., -1, :, :].shape),
+                               atol=1e-10)
+    expected = np.linalg.inv(j0)[..., None, :, :] @ raw
+    np.testing.assert_allclose(corrected[..., :-1, :, :], expected, atol=1e-10)
+
+
+def test_station_beam_fwhm_at_150_mhz(beams, lofar_mss):
+    fast, _ = beams["3c196"]
+    ra0, dec0 = fast.phase_centre
+    t = float(np.median(read_times(lofar_mss["3c196"])))
+    offsets = np.radians(np.linspace(-5, 5, 201))
+    widths = []
+    for axis in range(2):  # cuts along l and m
+        ll, mm = (offsets, 0 * offsets) if axis == 0 else (0 * offsets, offsets)
+        nn = np.sqrt(1 - ll ** 2 - mm ** 2)
+        dec = np.arcsin(mm * np.cos(dec0) + nn * np.sin(dec0))
+        ra = ra0 + np.arctan2(ll, nn * np.cos(dec0) - mm * np.sin(dec0))
+        j = fast.jones([t], [150e6], ra, dec, stations=[2], centre_correction=True)[0, 0, 0]
+        power = np.real(jones_to_mueller(j)[:, 0, 0])
+        inside = offsets[power >= 0.5]
+        widths.append(np.degrees(inside.max() - inside.min()))
+    assert all(3.5 < w < 5.5 for w in widths), widths
+
+
+def test_leakage_grows_away_from_the_centre(beams, lofar_mss):
+    fast, _ = beams["3c196"]
+    ra0, dec0 = fast.phase_centre
+    t = read_times(lofar_mss["3c196"])[0]
+    pa = np.radians(np.arange(0, 360, 30))
+    means = []
+    for radius in (0.0, 1.0, 3.0, 6.0):
+        r = np.radians(radius)
+        ll, mm = np.sin(r) * np.sin(pa), np.sin(r) * np.cos(pa)
+        nn = np.sqrt(1 - ll ** 2 - mm ** 2)
+        dec = np.arcsin(mm * np.cos(dec0) + nn * np.sin(dec0))
+        ra = ra0 + np.arctan2(ll, nn * np.cos(dec0) - mm * np.sin(dec0))
+        j = fast.jones([t], [150e6], ra, dec, centre_correction=True)[:, 0, 0]
+        means.append(np.mean(leakage(np.real(jones_to_mueller(j)))))
+    assert means[0] < 1e-9
+    assert means[0] < means[1] < means[2] < means[3]
+    assert means[3] < 0.5
+
+
+def test_ncp_pixel_is_finite_and_consistent(beams, lofar_mss):
+    fast, direct = beams["ncp"]
+    t = read_times(lofar_mss["ncp"])[:1]
+    a, b = 0.3, 1.9
+    ra = np.array([a, b, a])
+    dec = np.array([np.pi / 2, np.pi / 2, np.pi / 2 - 1e-7])
+    jf = fast.jones(t, [150e6], ra, dec)[:, 0, 0]
+    jd = direct.jones(t, [150e6], ra, dec)[:, 0, 0]
+    assert np.all(np.isfinite(jf)) and np.abs(jf).max() > 0.1
+    assert np.abs(jf - jd).max() / np.abs(jd).max() < 1e-5
+    # the limit along the meridian: continuous with a point 0.02" below the pole
+    assert np.abs(jf[:, 0] - jf[:, 2]).max() / np.abs(jf[:, 2]).max() < 1e-5
+    # only the basis differs between RA a and b at the pole: (N, E) turns by b - a, so
+    # J(b) = J(a) R with R the rotation taking the basis at a to the one at b
+    c, s = np.cos(b - a), np.sin(b - a)
+    rot = np.array([[c, s], [-s, c]])
+    np.testing.assert_allclose(jf[:, 1], jf[:, 0] @ rot, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", ["everybeam", "everybeam-direct"])
+def test_below_horizon_is_zero_not_nan(beams, model):
+    beam = beams["3c196"][0 if model == "everybeam" else 1]
+    j = beam.jones([4.86234e9], [150e6], [1.0, 2.0], [np.radians(-60), np.radians(-89.9)])
+    assert np.all(j == 0)
+
+
+def test_everybeam_without_lofar_tables_names_dipole(make_ms, tmp_path):
+    layout = tmp_path / "array.txt"
+    layout.write_text("frame = enu\ntelescope = MYARRAY\nA 0 0 0\nB 100 20 0\nC -50 80 0\n")
+    ms = make_ms("custom.ms", layout=str(layout), stations=None)
+    for model in ("everybeam", "everybeam-direct"):
+        with pytest.raises(InputError, match="--beam dipole"):
+            load_beam(model, ms)
