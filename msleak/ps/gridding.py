@@ -29,7 +29,9 @@ on integer multiples of ``cell``, ``u`` and ``v`` from ``-M cell`` to ``+M cell`
     lobes amplify noise in edge cells (up to 30x measured on LOFAR coverage).
 
 Sign convention of the visibilities: ``V = sum B exp(-2 pi i (u l + v m + w (n - 1)))``
-(design.md), uvw as stored in the MS.
+(design.md) with (u, v, w) = uvw_p - uvw_q, i.e. minus the MS's UVW column (which holds
+uvw_q - uvw_p); :func:`msleak.ps.uvcube.grid_ms` negates UVW accordingly
+(docs/conventions.md).
 """
 
 from __future__ import annotations

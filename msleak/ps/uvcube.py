@@ -207,7 +207,11 @@ def grid_ms(ms: str | os.PathLike, *, column: str = "DATA", cell: float = 16.0,
         if ncorr != 4 or nchan != freq.size:
             raise InputError(f"{ms}: column {column} has shape (row, {nchan}, {ncorr}); "
                              f"expected (row, {freq.size}, 4)")
-        uvw = np.asarray(c["UVW"], float)
+        # The MS's UVW column holds uvw_ANTENNA2 - uvw_ANTENNA1, and visibilities follow
+        # V = sum B exp(+2 pi i UVW . (l, m, n - 1)) (DP3's convention, which msleak predict
+        # reproduces: tests/test_predict_dp3.py). The gridding kernels use
+        # exp(-2 pi i (u l + v m + w (n - 1))), so they take u = -UVW.
+        uvw = -np.asarray(c["UVW"], float)
         b_m = np.hypot(uvw[:, 0], uvw[:, 1])
         keep = cross & (b_m * scale.max() >= uv_min) & (b_m * scale.min() <= uv_max)
         stats["samples"] += int(cross.sum()) * nchan

@@ -1,0 +1,423 @@
+"""Measurement-equation kernels: pure functions on arrays (numba + BLAS).
+
+Sign convention. The Measurement Set stores, for the row (ANTENNA1 = p, ANTENNA2 = q),
+uvw_pq = x_q - x_p (antenna 2 minus antenna 1, projected on the J2000 u, v, w axes). The
+visibility V_pq = < e_p e_q^* > of a point source is then
+
+    V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i (u l + v m + w (n - 1))),   (u, v, w) = uvw_pq / lambda
+
+which is method.md's exp(-2 pi i (u l + v m + w (n - 1))) written for the baseline
+vector x_p - x_q (the RIME's u_pq = u_p - u_q). This is exactly what DP3 computes from the
+MS's UVW column (``base/Simulator.cc``: conj(phasor_p) phasor_q, phasor = exp(+2 pi i
+x . lmn / lambda)), and the DP3 comparison in the tests checks it end to end.
+
+Writing uvw_pq = x_q - x_p with per-station coordinates x_p (see
+:mod:`msleak.predict.stations`), the phase factorises per station and
+
+    V_pq = sum_s A_p(s) B_s A_q(s)^H,    A_p(s) = J_p(s) exp(-2 pi i x_p . (l, m, n - 1) / lambda).
+
+The brightness matrix is Hermitian, B_s = W_s diag(sigma_s) W_s^H with sigma = +-1 (its
+eigen-decomposition with sqrt|eigenvalue| folded into W; zero eigenvalues are dropped).
+Stacking the 2x2 blocks Z_p(s) = A_p(s) W_s of all stations as a (2 nstation, ncol) matrix
+per (time, channel) (stored transposed so that each station's row is written
+contiguously), the whole 2 nstation x 2 nstation visibility matrix of all baselines is
+two Hermitian rank-k updates (BLAS ``herk``):
+
+    V = Z+ Z+^H - Z- Z-^H,
+
+half the work of the general ``X Y^H`` product. Each (time, channel) is independent; the
+numba kernel runs them in parallel with one single-threaded BLAS call each. Per-station
+phases are evaluated once per block of channels and advanced by a constant complex step
+per channel when the channels are evenly spaced (else evaluated per channel).
+
+Everything is computed in the *linear* feed basis (X, Y), the basis the beam models return
+Jones matrices in; :func:`linear_to_circular` converts the visibilities for circular feeds.
+Phases are always evaluated in float64; the matrices Z and V are in the output precision.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+from numba import types
+
+from msleak.predict._blas import HERK_SYMBOLS, register_herk, single_threaded_blas
+
+__all__ = [
+    "C_LIGHT",
+    "lmn_minus_one",
+    "brightness_factors",
+    "column_layout",
+    "predict_gram",
+    "gram_to_matrix",
+    "gather_rows",
+    "linear_to_circular",
+    "LINEAR_TO_CIRCULAR",
+]
+
+#: Speed of light in vacuum (m/s).
+C_LIGHT = 299_792_458.0
+
+#: (RR, RL, LR, LL) = LINEAR_TO_CIRCULAR @ (XX, XY, YX, YY): kron(T, conj(T)) with
+#: R = (X + iY)/sqrt(2), L = (X - iY)/sqrt(2), which maps the linear brightness matrix
+#: [[I+Q, U+iV], [U-iV, I-Q]] to the circular one [[I+V, Q+iU], [Q-iU, I-V]].
+_T = np.array([[1, 1j], [1, -1j]]) / np.sqrt(2.0)
+LINEAR_TO_CIRCULAR = np.kron(_T, _T.conj())
+
+register_herk()
+_ARG = types.uintp  # pointer arguments of the Fortran BLAS interface (x86-64/aarch64 ABI)
+_cherk = types.ExternalFunction(HERK_SYMBOLS["c"], types.void(*([_ARG] * 10)))
+_zherk = types.ExternalFunction(HERK_SYMBOLS["z"], types.void(*([_ARG] * 10)))
+
+
+def lmn_minus_one(ra: np.ndarray, dec: np.ndarray, ra0: float, dec0: float) -> np.ndarray:
+    """Direction cosines (l, m, n - 1) of directions relative to a phase centre.
+
+    Parameters
+    ----------
+    ra, dec : (ndir,) float
+        Directions (rad, same frame as the phase centre).
+    ra0, dec0 : float
+        Phase centre (rad).
+
+    Returns
+    -------
+    (ndir, 3) float64
+        l (towards East), m (towards North), n - 1 (computed without cancellation). Rows
+        of directions more than 90 deg from the phase centre have n - 1 < -1.
+    """
+    ra = np.asarray(ra, dtype=np.float64)
+    dec = np.asarray(dec, dtype=np.float64)
+    dra = ra - ra0
+    l = np.cos(dec) * np.sin(dra)
+    m = np.sin(dec) * np.cos(dec0) - np.cos(dec) * np.sin(dec0) * np.cos(dra)
+    n = np.sin(dec) * np.sin(dec0) + np.cos(dec) * np.cos(dec0) * np.cos(dra)
+    r2 = l * l + m * m
+    nm1 = np.where(n > 0, -r2 / (1.0 + np.sqrt(np.clip(1.0 - r2, 0.0, None))), n - 1.0)
+    return np.stack([l, m, nm1], axis=-1)
+
+
+def brightness_factors(iquv: np.ndarray, rtol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """Factor each linear-feed brightness matrix as B = W diag(sign) W^H.
+
+    Parameters
+    ----------
+    iquv : (ndir, nchan, 4) float
+        Stokes (I, Q, U, V) in Jy.
+    rtol : float
+        Eigenvalues smaller than ``rtol`` times the largest eigenvalue magnitude of the
+        same matrix (or exactly zero) are dropped (sign 0).
+
+    Returns
+    -------
+    W : (ndir, nchan, 2, 2) complex128
+        Columns are eigenvectors of B = [[I+Q, U+iV], [U-iV, I-Q]] times sqrt|eigenvalue|
+        (sqrt(Jy)).
+    sign : (ndir, nchan, 2) int8
+        +1, -1 or 0 (dropped) per column.
+    """
+    iquv = np.asarray(iquv, dtype=np.float64)
+    i, q, u, v = (iquv[..., k] for k in range(4))
+    b = np.empty(iquv.shape[:-1] + (2, 2), dtype=np.complex128)
+    b[..., 0, 0] = i + q
+    b[..., 0, 1] = u + 1j * v
+    b[..., 1, 0] = u - 1j * v
+    b[..., 1, 1] = i - q
+    lam, vec = np.linalg.eigh(b)
+    big = np.abs(lam).max(axis=-1, keepdims=True)
+    keep = np.abs(lam) > rtol * big
+    sign = np.where(keep, np.sign(lam), 0).astype(np.int8)
+    w = vec * np.sqrt(np.where(keep, np.abs(lam), 0.0))[..., None, :]
+    return w, sign
+
+
+def column_layout(sign: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Column of Z for every (channel, direction, eigenvector): positives first.
+
+    Parameters
+    ----------
+    sign : (ndir, nchan, 2) int8
+        From :func:`brightness_factors`.
+
+    Returns
+    -------
+    colmap : (nchan, ndir, 2) int32
+        Column index in Z, or -1 for a dropped eigenvector.
+    kpos, kneg : (nchan,) int64
+        Numbers of positive and negative columns per channel.
+    """
+    s = np.transpose(np.asarray(sign), (1, 0, 2)).reshape(sign.shape[1], -1)
+    pos = s > 0
+    neg = s < 0
+    kpos = pos.sum(axis=1)
+    kneg = neg.sum(axis=1)
+    colmap = np.full(s.shape, -1, dtype=np.int32)
+    rank_pos = np.cumsum(pos, axis=1) - 1
+    rank_neg = np.cumsum(neg, axis=1) - 1 + kpos[:, None]
+    colmap[pos] = rank_pos[pos]
+    colmap[neg] = rank_neg[neg]
+    return colmap.reshape(sign.shape[1], sign.shape[0], 2), kpos.astype(np.int64), kneg.astype(np.int64)
+
+
+@nb.njit(parallel=True, nogil=True, cache=True)
+def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, w, colmap, kpos, kneg, gram):
+    nt, nst = xyz.shape[0], xyz.shape[1]
+    ndir = lmn1.shape[0]
+    nchan = freq.shape[0]
+    n2 = 2 * nst
+    nblk = (nchan + block - 1) // block
+    two_pi_c = 2.0 * math.pi / 299_792_458.0
+    for it in nb.prange(nt * nblk):
+        t = it // nblk
+        c0 = (it - t * nblk) * block
+        c1 = min(nchan, c0 + block)
+        jt = t if jones.shape[1] > 1 else 0
+        # per-station phase exp(-2 pi i f x_p . lmn1 / c): direct at c0, then
+        # multiplied by a constant step per channel when channels are regular
+        phase = np.empty((nst, ndir), dtype=np.complex128)
+        step = np.empty((nst, ndir), dtype=np.complex128)
+        geo = np.empty((nst, ndir), dtype=np.float64)
+        df = freq[c0 + 1] - freq[c0] if c1 - c0 > 1 else 0.0
+        for p in range(nst):
+            x0, x1, x2 = xyz[t, p, 0], xyz[t, p, 1], xyz[t, p, 2]
+            for s in range(ndir):
+                g = -two_pi_c * (x0 * lmn1[s, 0] + x1 * lmn1[s, 1] + x2 * lmn1[s, 2])
+                geo[p, s] = g
+                phase[p, s] = complex(math.cos(g * freq[c0]), math.sin(g * freq[c0]))
+                if regular:
+                    step[p, s] = complex(math.cos(g * df), math.sin(g * df))
+        # Z^T as a C-order (2 nst, 2 ndir) array = Fortran (2 ndir, 2 nst): rows of one
+        # station are written contiguously; herk('U', 'C') then gives Z Z^H (transposed)
+        kmax = 2 * ndir
+        z = np.empty((n2, kmax), dtype=gram.dtype)
+        uplo = np.empty(1, dtype=np.uint8)
+        uplo[0] = 85  # 'U'
+        trans = np.empty(1, dtype=np.uint8)
+        trans[0] = 67  # 'C'
+        n_arr = np.empty(1, dtype=np.int32)
+        n_arr[0] = n2
+        k_arr = np.empty(1, dtype=np.int32)
+        lda = np.empty(1, dtype=np.int32)
+        lda[0] = kmax
+        single = gram.itemsize == 8
+        alpha32 = np.empty(1, dtype=np.float32)
+        beta32 = np.ones(1, dtype=np.float32)
+        alpha64 = np.empty(1, dtype=np.float64)
+        beta64 = np.ones(1, dtype=np.float64)
+        for c in range(c0, c1):
+            if c > c0:
+                for p in range(nst):
+                    for s in range(ndir):
+                        if regular:
+                            phase[p, s] *= step[p, s]
+                        else:
+                            phase[p, s] = complex(math.cos(geo[p, s] * freq[c]),
+                                                  math.sin(geo[p, s] * freq[c]))
+            kp = kpos[c]
+            kk = kp + kneg[c]
+            if kk == 0:
+                continue
+            jc = c if jones.shape[2] > 1 else 0
+            for p in range(nst):
+                jp = p if jones.shape[0] > 1 else 0
+                zx = z[2 * p]
+                zy = z[2 * p + 1]
+                for s in range(ndir):
+                    col0 = colmap[c, s, 0]
+                    col1 = colmap[c, s, 1]
+                    e = phase[p, s]
+                    if have_jones:
+                        a00 = e * jones[jp, jt, jc, s, 0, 0]
+                        a01 = e * jones[jp, jt, jc, s, 0, 1]
+                        a10 = e * jones[jp, jt, jc, s, 1, 0]
+                        a11 = e * jones[jp, jt, jc, s, 1, 1]
+                    else:
+                        a00 = e
+                        a01 = 0j
+                        a10 = 0j
+                        a11 = e
+                    if col0 >= 0:
+                        w00 = w[s, c, 0, 0]
+                        w10 = w[s, c, 1, 0]
+                        zx[col0] = a00 * w00 + a01 * w10
+                        zy[col0] = a10 * w00 + a11 * w10
+                    if col1 >= 0:
+                        w01 = w[s, c, 0, 1]
+                        w11 = w[s, c, 1, 1]
+                        zx[col1] = a00 * w01 + a01 * w11
+                        zy[col1] = a10 * w01 + a11 * w11
+            out = gram[t, c]
+            for sgn in range(2):
+                k0 = 0 if sgn == 0 else kp
+                k1 = kp if sgn == 0 else kk
+                if k1 == k0:
+                    continue
+                k_arr[0] = k1 - k0
+                zptr = z.ctypes.data + k0 * z.itemsize
+                if single:
+                    alpha32[0] = 1.0 if sgn == 0 else -1.0
+                    _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                           k_arr.ctypes.data, alpha32.ctypes.data, zptr,
+                           lda.ctypes.data, beta32.ctypes.data, out.ctypes.data,
+                           n_arr.ctypes.data)
+                else:
+                    alpha64[0] = 1.0 if sgn == 0 else -1.0
+                    _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                           k_arr.ctypes.data, alpha64.ctypes.data, zptr,
+                           lda.ctypes.data, beta64.ctypes.data, out.ctypes.data,
+                           n_arr.ctypes.data)
+
+
+def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
+                 freq: np.ndarray, w: np.ndarray, sign: np.ndarray,
+                 dtype=np.complex64) -> np.ndarray:
+    """Visibility matrices of all station pairs for a block of times and channels.
+
+    Parameters
+    ----------
+    jones : (nstation | 1, ntime | 1, nchan | 1, ndir, 2, 2) complex or None
+        Beam Jones matrices in the linear (X, Y) basis (already centre-corrected if
+        wanted); size-1 axes broadcast. None means no beam (identity). A correction that
+        depends only on station, time and channel (J_p(s0)^-1) is better applied by
+        :func:`gather_rows` to the sum than here to every source.
+    xyz : (ntime, nstation, 3) float64
+        Per-station coordinates x_p (m) with uvw_pq = x_q - x_p (MS convention); the
+        result is V_pq = sum_s J_p B_s J_q^H exp(+2 pi i uvw_pq . (l, m, n - 1) / lambda).
+    lmn1 : (ndir, 3) float64
+        (l, m, n - 1) of the directions (:func:`lmn_minus_one`).
+    freq : (nchan,) float64
+        Channel frequencies (Hz).
+    w, sign : from :func:`brightness_factors`, shapes (ndir, nchan, 2, 2) and (ndir, nchan, 2).
+    dtype : complex64 or complex128
+        Precision of the matrix products and of the result.
+
+    Returns
+    -------
+    (ntime, nchan, 2 nstation, 2 nstation) complex
+        ``G`` whose lower triangle (i >= j) is that of the Hermitian visibility matrix V
+        (row/column 2 p + a is station p, feed a); the strict upper triangle is not set.
+        Use :func:`gather_rows` or :func:`gram_to_matrix` to read it.
+    """
+    dtype = np.dtype(dtype)
+    if dtype not in (np.complex64, np.complex128):
+        raise ValueError(f"dtype must be complex64 or complex128, not {dtype}")
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    lmn1 = np.ascontiguousarray(lmn1, dtype=np.float64)
+    freq = np.ascontiguousarray(freq, dtype=np.float64)
+    nt, nst = xyz.shape[:2]
+    nchan = freq.size
+    if jones is None:
+        jones_arr = np.zeros((1, 1, 1, 1, 2, 2), dtype=dtype)
+        have = False
+    else:
+        jones_arr = np.asarray(jones)
+        have = True
+        if jones_arr.ndim != 6 or jones_arr.shape[-2:] != (2, 2) or jones_arr.shape[3] != lmn1.shape[0]:
+            raise ValueError(f"jones has shape {jones_arr.shape}, expected "
+                             f"(nstation, ntime, nchan, {lmn1.shape[0]}, 2, 2)")
+        for axis, n in ((0, nst), (1, nt), (2, nchan)):
+            if jones_arr.shape[axis] not in (1, n):
+                raise ValueError(f"jones axis {axis} has length {jones_arr.shape[axis]}, "
+                                 f"expected 1 or {n}")
+    colmap, kpos, kneg = column_layout(sign)
+    w = np.ascontiguousarray(w, dtype=np.complex128)
+    gram = np.zeros((nt, nchan, 2 * nst, 2 * nst), dtype=dtype)
+    regular = _regular_spacing(freq)
+    nthreads = nb.get_num_threads()
+    block = max(1, min(nchan, -(-nt * nchan // (4 * nthreads)))) if regular else 1
+    with single_threaded_blas():
+        _kernel(jones_arr, have, xyz, lmn1, freq, regular, block, w, colmap, kpos, kneg, gram)
+    return gram
+
+
+def _regular_spacing(freq: np.ndarray) -> bool:
+    """True when channel frequencies are f0 + k df to 1e-12 relative (phase recurrence)."""
+    if freq.size < 3:
+        return True
+    lin = freq[0] + np.arange(freq.size) * ((freq[-1] - freq[0]) / (freq.size - 1))
+    return bool(np.all(np.abs(freq - lin) <= 1e-12 * np.abs(freq)))
+
+
+def gram_to_matrix(gram: np.ndarray) -> np.ndarray:
+    """Full Hermitian visibility matrices V (ntime, nchan, 2 nst, 2 nst) from ``G``."""
+    lower = np.tril(gram)  # G[i, j] = V[i, j] for i >= j
+    return lower + np.conj(np.swapaxes(np.tril(gram, -1), -1, -2))
+
+
+@nb.njit(parallel=True, nogil=True, cache=True)
+def _gather(gram, tidx, p, q, left, have_left, out):
+    nrow = tidx.shape[0]
+    nchan = gram.shape[1]
+    for r in nb.prange(nrow):
+        t = tidx[r]
+        v = np.empty((2, 2), dtype=np.complex128)
+        for c in range(nchan):
+            for a in range(2):
+                for b in range(2):
+                    i = 2 * p[r] + a
+                    j = 2 * q[r] + b
+                    if i >= j:
+                        v[a, b] = gram[t, c, i, j]
+                    else:
+                        v[a, b] = np.conj(gram[t, c, j, i])
+            if have_left:
+                lp = left[p[r] if left.shape[0] > 1 else 0, t if left.shape[1] > 1 else 0,
+                          c if left.shape[2] > 1 else 0]
+                lq = left[q[r] if left.shape[0] > 1 else 0, t if left.shape[1] > 1 else 0,
+                          c if left.shape[2] > 1 else 0]
+                for a in range(2):
+                    for b in range(2):
+                        acc = 0j
+                        for k in range(2):
+                            for m in range(2):
+                                acc += lp[a, k] * v[k, m] * np.conj(lq[b, m])
+                        out[r, c, 2 * a + b] = acc
+            else:
+                for a in range(2):
+                    for b in range(2):
+                        out[r, c, 2 * a + b] = v[a, b]
+
+
+def gather_rows(gram: np.ndarray, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
+                jones_left: np.ndarray | None = None) -> np.ndarray:
+    """Visibilities of MS rows from the matrices of :func:`predict_gram`.
+
+    Parameters
+    ----------
+    gram : (ntime, nchan, 2 nst, 2 nst) complex
+    tidx, p, q : (nrow,) int
+        Time index into ``gram`` and the station indices (ANTENNA1, ANTENNA2 mapped to
+        0..nst-1) of every row; any order, autocorrelations allowed.
+    jones_left : (nst | 1, ntime | 1, nchan | 1, 2, 2) complex, optional
+        L_p with V'_pq = L_p V_pq L_q^H: the phase-centre correction L_p = J_p(s0)^-1
+        (method.md 4), which equals applying it to every source's Jones matrix.
+
+    Returns
+    -------
+    (nrow, nchan, 4) complex
+        Correlations XX, XY, YX, YY (linear basis).
+    """
+    tidx = np.ascontiguousarray(tidx, dtype=np.int64)
+    p = np.ascontiguousarray(p, dtype=np.int64)
+    q = np.ascontiguousarray(q, dtype=np.int64)
+    if jones_left is None:
+        left = np.zeros((1, 1, 1, 2, 2), dtype=np.complex128)
+    else:
+        left = np.asarray(jones_left, dtype=np.complex128)
+        if left.ndim != 5 or left.shape[-2:] != (2, 2):
+            raise ValueError(f"jones_left has shape {left.shape}, expected "
+                             "(nst, ntime, nchan, 2, 2)")
+        for axis, n in ((1, gram.shape[0]), (2, gram.shape[1])):
+            if left.shape[axis] not in (1, n):
+                raise ValueError(f"jones_left axis {axis} has length {left.shape[axis]}, "
+                                 f"expected 1 or {n}")
+    out = np.empty((tidx.size, gram.shape[1], 4), dtype=gram.dtype)
+    _gather(gram, tidx, p, q, left, jones_left is not None, out)
+    return out
+
+
+def linear_to_circular(vis: np.ndarray) -> np.ndarray:
+    """Correlations (..., 4) XX, XY, YX, YY -> RR, RL, LR, LL (see ``LINEAR_TO_CIRCULAR``)."""
+    return (np.asarray(vis) @ LINEAR_TO_CIRCULAR.T).astype(np.asarray(vis).dtype, copy=False)

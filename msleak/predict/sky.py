@@ -1,0 +1,102 @@
+"""Sky sources prepared for the kernel: unique directions, spectra on the MS channels,
+brightness factors.
+
+A FITS cube gives one source per pixel with the cube's spectrum (each voxel a point
+source at its own channel, method.md 3); a makesourcedb file gives parametric spectra.
+Sources sharing a direction are merged (their Stokes add), sources without flux on the
+channels are dropped, and so are directions 90 deg or more from the phase centre (they
+would need n <= 0: not in the visible hemisphere of the phase centre).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from msleak.predict.kernels import brightness_factors, lmn_minus_one
+
+__all__ = ["SkyComponents", "sky_components", "prepare_sources"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SkyComponents:
+    """Directions and brightness factors of one (field, spectral window).
+
+    Attributes
+    ----------
+    ra, dec : (ndir,) rad
+    lmn1 : (ndir, 3) (l, m, n - 1) about the phase centre
+    iquv : (ndir, nchan, 4) Jy
+    w : (ndir, nchan, 2, 2) complex128, sign : (ndir, nchan, 2) int8
+        B = w diag(sign) w^H (linear-feed brightness matrix, see kernels)
+    """
+
+    ra: np.ndarray
+    dec: np.ndarray
+    lmn1: np.ndarray
+    iquv: np.ndarray
+    w: np.ndarray
+    sign: np.ndarray
+
+    @property
+    def ndir(self) -> int:
+        return int(self.ra.size)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.lmn1.nbytes + self.iquv.nbytes + self.w.nbytes + self.sign.nbytes)
+
+
+def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: float,
+                    dec0: float) -> SkyComponents:
+    """Merge, filter and factorise point sources (pure function).
+
+    Parameters
+    ----------
+    ra, dec : (nsrc,) rad
+    iquv : (nsrc, nchan, 4) Jy, Stokes (I, Q, U, V) on the MS channels
+    ra0, dec0 : phase centre, rad
+    """
+    ra = np.asarray(ra, dtype=np.float64)
+    dec = np.asarray(dec, dtype=np.float64)
+    iquv = np.asarray(iquv, dtype=np.float64)
+    if ra.size:
+        keys, inverse = np.unique(np.stack([ra, dec], axis=1), axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        if keys.shape[0] < ra.size:
+            merged = np.zeros((keys.shape[0],) + iquv.shape[1:])
+            np.add.at(merged, inverse, iquv)
+            ra, dec, iquv = keys[:, 0], keys[:, 1], merged
+    has_flux = np.any(iquv != 0, axis=(1, 2)) if iquv.size else np.zeros(ra.size, bool)
+    lmn1 = lmn_minus_one(ra, dec, ra0, dec0)
+    front = lmn1[:, 2] > -1.0
+    if np.any(has_flux & ~front):
+        log.warning("%d sources are 90 deg or more from the phase centre; they are ignored",
+                    int(np.count_nonzero(has_flux & ~front)))
+    keep = has_flux & front
+    ra, dec, iquv, lmn1 = ra[keep], dec[keep], iquv[keep], lmn1[keep]
+    w, sign = brightness_factors(iquv)
+    return SkyComponents(ra=ra, dec=dec, lmn1=lmn1, iquv=iquv, w=w, sign=sign)
+
+
+def sky_components(path: str | os.PathLike, freq: np.ndarray, ra0: float, dec0: float, *,
+                   fov_deg: float | None = None, interpolate: bool = False) -> SkyComponents:
+    """Read a sky file (:func:`msleak.sky.sources.read_sky`) for one field and window.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable sky, frequency mismatch, FoV larger than the cube, ...
+    """
+    from msleak.sky.sources import read_sky
+
+    sources = read_sky(path, fov_deg=fov_deg, phase_centre=(ra0, dec0))
+    iquv = sources.at_frequencies(np.asarray(freq, dtype=np.float64), interpolate=interpolate)
+    comp = prepare_sources(sources.ra, sources.dec, iquv, ra0, dec0)
+    log.info("sky %s: %d sources, %d directions with flux", path, len(sources), comp.ndir)
+    return comp
