@@ -98,6 +98,9 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     """
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
+    # the global options, for commands that run other msleak commands (msleak paper)
+    ctx.obj["global_args"] = (["-q"] if quiet else []) + ["-v"] * verbose + \
+        (["--debug"] if debug else [])
     level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s",

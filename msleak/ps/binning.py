@@ -14,7 +14,7 @@ import numpy as np
 
 from msleak.errors import InputError
 
-__all__ = ["half_plane", "power_3d", "fold_index", "linear_edges", "log_edges",
+__all__ = ["half_plane", "power_3d", "polarized_power", "fold_index", "linear_edges", "log_edges",
            "Cylindrical", "cylindrical_average", "spherical_average", "average_1d"]
 
 
@@ -31,6 +31,24 @@ def power_3d(vt: np.ndarray, vt_b: np.ndarray | None = None,
     else:
         p = (vt * np.conj(vt_b)).real
     return p / window_norm
+
+
+def polarized_power(p3d: np.ndarray, stokes: list) -> np.ndarray:
+    """Replace the P entry of a (stokes, ...) power array by P_Q + P_U.
+
+    P = Q + iU is not Hermitian: |P~(u, tau)|^2 differs from |P~(-u, -tau)|^2 (Faraday
+    rotation puts most polarized power at one sign of delay), while only one Hermitian
+    half of the uv plane is kept. The polarized power that can leak into the voxel
+    (u, tau) of Stokes I is the mean over the pair, (|P~(u, tau)|^2 + |P~(-u, -tau)|^2) / 2,
+    which equals |Q~(u, tau)|^2 + |U~(u, tau)|^2 for Hermitian Q and U (and
+    Re(Q~a Q~b*) + Re(U~a U~b*) for cross-power). The same holds for the cylindrical
+    averages, which are unchanged by this choice when both halves are averaged.
+    """
+    if "P" not in stokes:
+        return p3d
+    out = np.array(p3d, copy=True)
+    out[stokes.index("P")] = p3d[stokes.index("Q")] + p3d[stokes.index("U")]
+    return out
 
 
 def fold_index(delay: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

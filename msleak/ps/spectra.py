@@ -112,6 +112,7 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
                                a["window_norm"])
     else:
         p3d = binning.power_3d(dl["vis"].values[:, :, iv, iu], None, a["window_norm"])
+    p3d = binning.polarized_power(p3d, list(dl["stokes"].values))
     delay = dl["delay"].values
     b_cell = b[iv, iu]
     kperp_cell = cosmo.k_perp(b_cell)

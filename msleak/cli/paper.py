@@ -1,0 +1,83 @@
+"""``msleak paper``: the whole leakage study in one command."""
+
+from __future__ import annotations
+
+import click
+
+
+def _observed(ctx, param, values):
+    out = {}
+    for item in values:
+        try:
+            fld, cubes = item.split("=", 1)
+            q_cube, u_cube = cubes.split(",")
+        except ValueError:
+            raise click.BadParameter(f"{item!r}: expected FIELD=Q.fits,U.fits "
+                                     "(e.g. ncp=ncp_Q.fits,ncp_U.fits)") from None
+        if fld.lower() not in ("ncp", "3c196"):
+            raise click.BadParameter(f"unknown field {fld!r}: ncp or 3c196")
+        for cube in (q_cube, u_cube):
+            if not click.Path(exists=True, dir_okay=False).convert(cube, param, ctx):
+                raise click.BadParameter(f"{cube}: no such file")
+        out[fld.lower()] = (q_cube, u_cube)
+    return out
+
+
+@click.command()
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--quick", is_flag=True, help="Reduced size (18 HBA fields, 2 h at 600 s, "
+              "both fields, all three fields of view): a few minutes on 2 cores.")
+@click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
+              help="Seed of the sky model.")
+@click.option("--field", "fields", type=click.Choice(["ncp", "3c196"]), multiple=True,
+              help="Only these fields (repeatable) [default: both].")
+@click.option("--beam", type=click.Choice(["everybeam", "everybeam-direct", "dipole"]),
+              default="everybeam", show_default=True, help="Beam model for predict and maps.")
+@click.option("--observed", multiple=True, callback=_observed, metavar="FIELD=Q.fits,U.fits",
+              help="Observed Q and U image cubes of a field: adds its polarized PS and the "
+              "expected leakage (method.md 6-7). Repeatable.")
+@click.option("--stations", default=None, metavar="PATTERN",
+              help="Override the stations (e.g. 'CS00[1-7]HBA*') [48 HBA core fields; "
+              "--quick: 18].")
+@click.option("--duration", "duration_h", type=float, default=None, metavar="HOURS",
+              help="Override the synthesis time of both fields [13 h NCP, 8 h 3C196; "
+              "--quick: 2 h].")
+@click.option("--interval", "interval_s", type=float, default=None, metavar="SEC",
+              help="Override the integration time [120 s; --quick: 600 s].")
+@click.option("--nchan", type=click.IntRange(8, None), default=None,
+              help="Override the number of channels of the MSs and the sky [50].")
+@click.option("--force", is_flag=True, help="Redo every step, even those up to date.")
+@click.pass_context
+def paper(ctx, outdir, quick, seed, fields, beam, observed, stations, duration_h, interval_s,
+          nchan, force):
+    """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
+    through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
+    statistics, every figure, and OUTDIR/report.md with the commands used.
+
+    Resumable: a rerun skips finished steps whose inputs are unchanged.
+
+    \b
+    Examples:
+      msleak paper study/ --quick
+      msleak paper study/ --observed ncp=ncp_Q.fits,ncp_U.fits
+    """
+    from pathlib import Path
+
+    from msleak.errors import MsleakError
+    from msleak.pipeline import StudyConfig, run_study
+
+    root = ctx.find_root().command
+
+    def invoke(args):
+        rc = root.main(args=[*ctx.obj.get("global_args", []), *args], prog_name="msleak",
+                       standalone_mode=False, obj=ctx.obj)
+        if rc not in (None, 0):
+            raise MsleakError(f"`msleak {' '.join(args)}` failed (exit {rc}); fix what it "
+                              "said above and rerun `msleak paper` to resume")
+
+    cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed,
+                      fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
+                      observed=observed, stations=stations, duration_h=duration_h,
+                      interval_s=interval_s, nchan=nchan)
+    report = run_study(cfg, invoke, force=force)
+    click.echo(f"report: {report}")
