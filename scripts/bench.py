@@ -1,6 +1,16 @@
-"""Driver of scripts/bench: runs each stage as a separate process under /usr/bin/time -v,
-records wall time and peak memory, and runs the per-topic benchmark scripts
-(scripts/bench_*.py), each of which prints one JSON object as its last line of output."""
+"""Driver of scripts/bench: build the paper-scale inputs, time every msleak stage with its
+peers side by side, and write bench-output/bench.json and docs/benchmarks.md.
+
+Each stage runs as its own process under /usr/bin/time -v (wall time, peak resident memory
+of the largest process). The per-topic scripts (scripts/bench_*.py, each accepting
+``--outdir DIR --quick`` and printing one JSON object as its last line) time the peers:
+EveryBeam direct (beam), DP3 predict + applybeam (predict), ps_eor (PS of an image cube),
+and the scaling of predict and grid with sources, stations, times and channels.
+
+Paper scale (method.md 2-3): NCP, 13 h of 120 s slots, the 48 LOFAR HBA core fields, 50
+channels of 195.3125 kHz from 150 MHz, a 50 x 50-pixel Q/U sky cube over 15 deg (2500
+sources), the LOFAR beam with the phase-centre correction, 30-180 wavelengths.
+"""
 
 from __future__ import annotations
 
@@ -9,22 +19,25 @@ import json
 import os
 import platform
 import re
+import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-OUT = ROOT / "bench-output"
+SCRIPTS = ROOT / "scripts"
 
 
-def timed(cmd: list[str], cwd: Path) -> dict:
-    """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak RSS (MiB), exit code, stdout."""
+def timed(cmd: list, cwd: Path) -> dict:
+    """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak RSS (MiB), exit code, output."""
     t0 = time.perf_counter()
-    proc = subprocess.run(["/usr/bin/time", "-v", *cmd], cwd=cwd, capture_output=True, text=True)
+    proc = subprocess.run(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd,
+                          capture_output=True, text=True)
     wall = time.perf_counter() - t0
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", proc.stderr)
-    return {"command": " ".join(cmd), "wall_s": round(wall, 2),
+    return {"command": " ".join(map(str, cmd)).replace(str(ROOT) + "/", ""),
+            "wall_s": round(wall, 2),
             "peak_rss_mib": round(int(rss.group(1)) / 1024, 1) if rss else None,
             "exit": proc.returncode, "stdout": proc.stdout[-4000:],
             "stderr": proc.stderr[-2000:] if proc.returncode else ""}
@@ -46,65 +59,176 @@ def du_mib(path: Path) -> float:
     return round(total / 2**20, 1)
 
 
+def ensure_ps_eor() -> str:
+    """'' if ps_eor imports (installed from PyPI into this environment if needed), else why not."""
+    probe = [sys.executable, "-c", "import ps_eor"]
+    if subprocess.run(probe, capture_output=True).returncode == 0:
+        return ""
+    print("bench: installing ps-eor (the PS peer) from PyPI", file=sys.stderr, flush=True)
+    pip = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "ps-eor"],
+                         capture_output=True, text=True)
+    if pip.returncode == 0 and subprocess.run(probe, capture_output=True).returncode == 0:
+        return ""
+    return "ps_eor not installed and `pip install ps-eor` failed: " + \
+        " ".join(pip.stderr.split())[-200:]
+
+
+def compare_columns(ms: Path, a: str, b: str) -> float:
+    """max |a - b| / max |b| of two columns of ``ms`` (read in row chunks)."""
+    import casacore.tables as pt
+    import numpy as np
+
+    num = den = 0.0
+    with pt.table(str(ms), ack=False) as t:
+        for start in range(0, t.nrows(), 50_000):
+            n = min(50_000, t.nrows() - start)
+            x, y = t.getcol(a, start, n), t.getcol(b, start, n)
+            num = max(num, float(np.abs(x - y).max()))
+            den = max(den, float(np.abs(y).max()))
+    return num / den if den else float("nan")
+
+
+def compare_cubes(a: Path, b: Path) -> float:
+    import numpy as np
+    import xarray as xr
+
+    with xr.open_dataset(a, engine="h5netcdf") as x, xr.open_dataset(b, engine="h5netcdf") as y:
+        va, vb = x["vis"].values, y["vis"].values
+    return float(np.abs(va - vb).max() / np.abs(vb).max())
+
+
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--quick", action="store_true", help="smaller inputs (a smoke run)")
-    ap.add_argument("--only", default="", help="comma-separated stages to run")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="small inputs (a smoke run, minutes)")
+    ap.add_argument("--only", default="", help="comma-separated stages or groups to run "
+                    "(simulate, sky, beam, predict, grid, transform, ps, leakage, peers, "
+                    "beam_peer, predict_peer, ps_peer, schedulers, predict_schedulers, "
+                    "grid_schedulers, scaling)")
+    ap.add_argument("--outdir", default=str(ROOT / "bench-output"))
+    ap.add_argument("--doc", default=str(ROOT / "docs" / "benchmarks.md"),
+                    help="Markdown report ('' for none)")
+    ap.add_argument("--keep", action="store_true", help="keep the Measurement Sets")
     args = ap.parse_args()
     only = set(filter(None, args.only.split(",")))
-    OUT.mkdir(exist_ok=True)
+    out = Path(args.outdir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
     results = {"machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
-                           "platform": platform.platform()},
-               "date": time.strftime("%Y-%m-%d %H:%M"), "stages": {}}
+                           "platform": platform.platform(), "load_avg_start": os.getloadavg()},
+               "date": time.strftime("%Y-%m-%d %H:%M"), "quick": args.quick,
+               "stages": {}, "peers": {}, "schedulers": {}, "notes": []}
+    previous = out / "bench.json"
+    if only and previous.exists():  # a partial rerun updates the last full results
+        old = json.loads(previous.read_text())
+        for group in ("stages", "peers", "schedulers"):
+            results[group] = old.get(group, {})
+        results["notes"] = old.get("notes", [])
+        results["notes"].append(
+            f"{time.strftime('%Y-%m-%d %H:%M')}: rerun of {', '.join(sorted(only))} (`--only`; "
+            f"load average {os.getloadavg()[0]:.1f} at its start)")
+        results["date"] = old.get("date", results["date"])
+        results["machine"] = {**results["machine"], **{k: v for k, v in old.get(
+            "machine", {}).items() if k.startswith("load_avg")}}
     msleak = [sys.executable, "-m", "msleak", "-q"]
+    stages = results["stages"]
 
-    def want(stage):
-        return not only or stage in only
+    def want(*names):
+        return not only or bool(only & set(names))
 
-    if want("simulate"):
-        for interval in ([120] if args.quick else [120, 10]):
-            ms = OUT / f"ncp_{interval}s.ms"
-            r = timed([*msleak, "simulate", str(ms), "--field", "ncp", "--interval",
-                       str(interval), "--overwrite"], OUT)
-            r["size_mib"] = du_mib(ms) if ms.exists() else None
-            results["stages"][f"simulate_ncp_{interval}s"] = r
-            if interval == 10 and ms.exists():
-                subprocess.run(["rm", "-rf", str(ms)])
-    for stage in ("beam", "predict", "ps", "leakage", "sky"):
-        script = ROOT / "scripts" / f"bench_{stage}.py"
-        if want(stage) and script.exists():
-            cmd = [sys.executable, str(script), "--outdir", str(OUT)]
-            if args.quick:
-                cmd.append("--quick")
-            r = timed(cmd, OUT)
-            r["result"] = last_json(r["stdout"])
-            results["stages"][stage] = r
-    (OUT / "bench.json").write_text(json.dumps(results, indent=1))
-    write_markdown(results, ROOT / "docs" / "benchmarks.md")
-    print(json.dumps({k: {"wall_s": v["wall_s"], "peak_rss_mib": v["peak_rss_mib"],
-                          "exit": v["exit"]} for k, v in results["stages"].items()}, indent=1))
-    return 0 if all(v["exit"] == 0 for v in results["stages"].values()) else 1
+    def stage(name, cmd, group=None):
+        print(f"bench: {name} ...", file=sys.stderr, flush=True)
+        r = timed(cmd, out)
+        (stages if group is None else results[group])[name] = r
+        print(f"bench: {name}: {r['wall_s']:.1f} s, peak {r['peak_rss_mib']} MiB"
+              + (f", FAILED exit {r['exit']}: {r['stderr'][-300:]}" if r["exit"] else ""),
+              file=sys.stderr, flush=True)
+        return r
 
+    size = (["--duration", "2", "--stations", "CS00[1-7]HBA*"] if args.quick else [])
+    ms = out / "ncp.ms"
+    sky = out / "sky.fits"
+    # 1. inputs at the paper's scale, timed as stages
+    if want("simulate") or not (ms / "table.dat").exists():
+        r = stage("simulate", [*msleak, "simulate", ms, "--field", "ncp", *size, "--overwrite"])
+        r["size_mib"] = du_mib(ms) if ms.exists() else None
+    if want("sky") or not sky.exists():
+        stage("sky", [*msleak, "sky", sky, "--seed", "1", "--overwrite"])
+    # 2. the chain, default options (scheduler threads on all cores)
+    if want("beam"):
+        stage("beam", [*msleak, "beam", ms, "-o", out / "beam.png"])
+    if want("predict"):
+        stage("predict", [*msleak, "predict", ms, "--sky", sky, "--no-progress", "--restart"])
+    if want("grid"):
+        stage("grid", [*msleak, "grid", ms, "--column", "MODEL_DATA", "-o", out / "grid.h5"])
+    if want("transform"):
+        stage("transform", [*msleak, "transform", out / "grid.h5", "-o", out / "delay.h5"])
+    if want("ps"):
+        stage("ps", [*msleak, "ps", out / "delay.h5", "-o", out / "ps.h5",
+                     "--plot", out / "ps.png"])
+    if want("leakage"):
+        stage("leakage", [*msleak, "leakage", out / "ps.h5", "-o", out / "leakage",
+                          "--field-name", "NCP"])
+    # 3. schedulers: predict of a 1 h MS and grid of the paper MS, sync / threads / processes
+    if want("schedulers", "predict_schedulers"):
+        small = out / "ncp_1h.ms"
+        subprocess.run([*msleak, "simulate", small, "--field", "ncp", "--duration",
+                        "0.5" if args.quick else "1", *size[2:], "--overwrite"], check=True)
+        for sched in ("sync", "threads", "processes"):
+            stage(f"predict_1h_{sched}", [*msleak, "predict", small, "--sky", sky,
+                                          "--column", f"MODEL_{sched.upper()}",
+                                          "--scheduler", sched, "--no-progress"], "schedulers")
+        for sched in ("threads", "processes"):
+            results["schedulers"][f"predict_1h_{sched}"]["max_rel_diff_vs_sync"] = \
+                compare_columns(small, f"MODEL_{sched.upper()}", "MODEL_SYNC")
+        if not args.keep:
+            shutil.rmtree(small, ignore_errors=True)
+    if want("schedulers", "grid_schedulers"):
+        for sched in ("sync", "threads", "processes"):
+            stage(f"grid_{sched}", [*msleak, "grid", ms, "--column", "MODEL_DATA", "-o",
+                                    out / f"grid_{sched}.h5", "--scheduler", sched],
+                  "schedulers")
+        for sched in ("threads", "processes"):
+            if (out / f"grid_{sched}.h5").exists() and (out / "grid_sync.h5").exists():
+                results["schedulers"][f"grid_{sched}"]["max_rel_diff_vs_sync"] = \
+                    compare_cubes(out / f"grid_{sched}.h5", out / "grid_sync.h5")
+    # 4. peers side by side, and the scaling table
+    quick = ["--quick"] if args.quick else []
+    if want("peers", "beam_peer"):
+        r = stage("beam_vs_everybeam", [sys.executable, SCRIPTS / "bench_beam.py",
+                                        "--outdir", out, *quick], "peers")
+        r["result"] = last_json(r["stdout"])
+    if want("peers", "predict_peer"):
+        r = stage("predict_vs_dp3", [sys.executable, SCRIPTS / "bench_predict.py",
+                                     "--outdir", out, *quick], "peers")
+        r["result"] = last_json(r["stdout"])
+    if want("peers", "ps_peer"):
+        why = ensure_ps_eor()
+        if why:
+            results["notes"].append(why)
+        r = stage("ps_image_vs_ps_eor", [sys.executable, SCRIPTS / "bench_ps.py", "--outdir",
+                                         out, "--skip-ms", *quick], "peers")
+        r["result"] = last_json(r["stdout"])
+    if want("scaling"):
+        r = stage("scaling", [sys.executable, SCRIPTS / "bench_scaling.py", "--outdir", out,
+                              *quick], "peers")
+        r["result"] = last_json(r["stdout"])
+    if not only:
+        results["machine"]["load_avg_end"] = os.getloadavg()
+    if not args.keep and not only:
+        shutil.rmtree(out / "predict", ignore_errors=True)
+    (out / "bench.json").write_text(json.dumps(results, indent=1, default=str))
+    if args.doc:
+        from bench_report import write_markdown
 
-def write_markdown(results: dict, path: Path) -> None:
-    m = results["machine"]
-    lines = ["# msleak benchmarks", "",
-             f"Measured by `scripts/bench` on {results['date']} ({m['cpus']} cores, "
-             f"Python {m['python']}, {m['platform']}). Each stage runs as its own process; "
-             "wall time and peak resident memory come from `/usr/bin/time -v`.", "",
-             "| stage | wall (s) | peak memory (MiB) | notes |", "|---|---|---|---|"]
-    for name, r in results["stages"].items():
-        note = ""
-        if "size_mib" in r and r["size_mib"] is not None:
-            note = f"MS size {r['size_mib']:.0f} MiB"
-        if r["exit"]:
-            note = f"FAILED (exit {r['exit']})"
-        lines.append(f"| {name} | {r['wall_s']:.1f} | {r['peak_rss_mib']} | {note} |")
-    for name, r in results["stages"].items():
-        if r.get("result"):
-            lines += ["", f"## {name}", "", "```json", json.dumps(r["result"], indent=1), "```"]
-    path.write_text("\n".join(lines) + "\n")
+        write_markdown(results, Path(args.doc))
+    summary = {k: {"wall_s": v["wall_s"], "peak_rss_mib": v["peak_rss_mib"], "exit": v["exit"]}
+               for group in ("stages", "schedulers", "peers") for k, v in results[group].items()}
+    print(json.dumps(summary, indent=1))
+    failed = [k for k, v in summary.items() if v["exit"]]
+    if failed:
+        print(f"bench: failed stages: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(SCRIPTS))
     sys.exit(main())

@@ -16,6 +16,10 @@ and scaled linearly (``direct_extrapolated``); ``--direct-dirs 0`` times all dir
 ``max_rel_diff`` compares the two on the directions timed for both.
 
 Usage: scripts/bench_beam.py [--sizes 2500,784,256] [--repeat 3] [--direct-dirs 64]
+                             [--outdir DIR] [--quick]
+
+The JSON document is printed on one line, last (``scripts/bench`` reads it); ``--outdir``
+also writes it to DIR/bench_beam.json; ``--quick`` times 256 directions x 10 channels.
 """
 
 from __future__ import annotations
@@ -47,7 +51,11 @@ def main(argv=None) -> int:
                         help="directions to time EveryBeam direct on (0 = all)")
     parser.add_argument("--channels", type=int, default=50)
     parser.add_argument("--stations", default="CS*HBA*")
+    parser.add_argument("--outdir", default=None, help="also write DIR/bench_beam.json")
+    parser.add_argument("--quick", action="store_true", help="256 directions, 10 channels")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.sizes, args.channels, args.repeat, args.direct_dirs = "256", 10, 1, 16
 
     import numba
 
@@ -101,8 +109,10 @@ def main(argv=None) -> int:
             })
             print(f"{ra.size} directions: fast {timings['fast_s']} s, direct {direct_s:.2f} s",
                   file=sys.stderr)
-    json.dump(report, sys.stdout, indent=1)
-    print()
+    if args.outdir:
+        Path(args.outdir).mkdir(parents=True, exist_ok=True)
+        (Path(args.outdir) / "bench_beam.json").write_text(json.dumps(report, indent=1))
+    print(json.dumps(report))
     return 0
 
 

@@ -19,7 +19,9 @@ per station with the phase-centre correction. On one MS of ``--slots`` time slot
   timed on a stack of channels with NumPy's BLAS threads.
 
 ``--full`` also runs msleak on a real 13 h NCP MS (390 slots) instead of extrapolating.
-Prints a table and writes JSON (``--json``). Called by ``scripts/bench``.
+Prints a table, then the results as one JSON line (last; ``scripts/bench`` reads it), and
+writes them to ``--json`` or DIR/bench_predict.json with ``--outdir DIR`` (the MS and sky
+are kept in DIR/predict). ``--quick``: 14 stations, 400 sources, 10 channels, 2 slots.
 """
 
 from __future__ import annotations
@@ -124,7 +126,15 @@ def main(argv=None) -> int:
     ap.add_argument("--full", action="store_true", help="also run the real 13 h NCP MS")
     ap.add_argument("--workdir", default=None, help="keep the MS and sky here")
     ap.add_argument("--json", default=None, help="write the results as JSON here")
+    ap.add_argument("--outdir", default=None,
+                    help="work in DIR/predict and write DIR/bench_predict.json")
+    ap.add_argument("--quick", action="store_true", help="a small smoke run")
     args = ap.parse_args(argv)
+    if args.outdir:
+        args.workdir = args.workdir or str(Path(args.outdir) / "predict")
+        args.json = args.json or str(Path(args.outdir) / "bench_predict.json")
+    if args.quick:
+        args.stations, args.nside, args.nchan, args.slots = "CS00[1-7]HBA*", 20, 10, 2
     os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(sys.prefix) / "numba-cache"))
 
     import casacore.tables as pt
@@ -209,6 +219,7 @@ def main(argv=None) -> int:
     _report(out)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2))
+    print(json.dumps(out))
     return 0
 
 

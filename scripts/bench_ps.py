@@ -13,7 +13,11 @@
    and cosmology (Planck18, no primary beam). Reported: both times, the k_perp and
    k_par axes (ps_eor's h Mpc^-1 converted to Mpc^-1) and the ratio of the 2D powers.
 
-Usage: scripts/bench_ps.py [--workdir DIR] [--quick] [--json OUT.json]
+Usage: scripts/bench_ps.py [--workdir DIR | --outdir DIR] [--quick] [--json OUT.json]
+                           [--skip-ms] [--skip-image]
+
+The results are printed last as one JSON line (``scripts/bench`` reads it); ``--outdir DIR``
+works in DIR/ps and writes DIR/bench_ps.json.
 """
 
 from __future__ import annotations
@@ -239,7 +243,11 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="also write the results as JSON")
     ap.add_argument("--skip-ms", action="store_true")
     ap.add_argument("--skip-image", action="store_true")
+    ap.add_argument("--outdir", default=None, help="work in DIR/ps, write DIR/bench_ps.json")
     args = ap.parse_args()
+    if args.outdir:
+        args.workdir = str(Path(args.outdir) / "ps")
+        args.json = args.json or str(Path(args.outdir) / "bench_ps.json")
     work = Path(args.workdir)
     work.mkdir(parents=True, exist_ok=True)
     results = {}
@@ -257,6 +265,7 @@ def main() -> None:
             print(f"  {k}: {v}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2))
+    print(json.dumps(results))
 
 
 if __name__ == "__main__":

@@ -8,12 +8,14 @@ import sys
 import click
 
 from msleak.cli._common import FloatList
+from msleak.cli.predict import _Memory
+from msleak.parallel.options import parallel_options
 
 log = logging.getLogger(__name__)
 
 
 @click.command()
-@click.argument("ms", required=False, type=click.Path())
+@click.argument("ms", nargs=-1, type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output uv cube (HDF5, docs/products.md 'uvcube').")
 @click.option("--column", default="DATA", show_default=True,
@@ -33,8 +35,9 @@ log = logging.getLogger(__name__)
 @click.option("--ddid", type=int, default=0, show_default=True,
               help="DATA_DESC_ID (spectral window) of the rows used.")
 @click.option("--beam-area", "beam_area_sr", type=float, default=None, metavar="SR",
-              help="Primary-beam area Omega = int A^2 dOmega (sr) for the mK^2 Mpc^3 "
-              "normalisation. Default: the area of the gridded field of view box.")
+              help="Primary-beam area Omega = int (A R)^2 dOmega (sr) for the mK^2 Mpc^3 "
+              "normalisation. Default: an Airy beam of a cell-wide station times the "
+              "gridder's response R (docs/grid.md).")
 @click.option("--image", "images", multiple=True, type=click.Path(),
               help="FITS image cube(s) instead of an MS (repeat for several Stokes).")
 @click.option("--stokes", "stokes", default=None, metavar="S[,S...]",
@@ -44,25 +47,38 @@ log = logging.getLogger(__name__)
               help="With --image: inner field of view used (deg); sets the cell to 1/FoV.")
 @click.option("--beam-fwhm", "beam_fwhm_deg", type=float, default=None, metavar="DEG",
               help="With --image in Jy/beam without BMAJ/BMIN: the restoring beam FWHM (deg).")
-@click.option("--taper", type=click.Choice(["hann", "none"]), default="hann", show_default=True,
-              help="wgrid image-domain taper over the 1/cell rad box (hann: compact positive "
-              "uv kernel; none: sinc-like kernel, noisier edge cells).")
-@click.option("--chunk-rows", type=click.IntRange(min=1), default=20000, show_default=True,
-              help="MS rows read at a time (bounds memory).")
+@click.option("--taper", type=click.Choice(["cos2", "hann"]), default="cos2", show_default=True,
+              help="wgrid uv kernel. cos2: positive, one cell wide; response wider than the "
+              "station beam (half power at 2.6 deg from the centre for 16-wavelength cells). "
+              "hann: legacy, ~4 cells wide, ~1.3 deg field (docs/grid.md).")
+@click.option("--chunk-rows", type=click.IntRange(min=1), default=None,
+              help="MS rows per chunk task (bounds memory, about chunk_rows x nchan x 270 "
+              "bytes per task) [default: 2 million samples (rows x channels), within "
+              "--memory-limit].")
+@click.option("--memory-limit", type=_Memory(), default="2GB", show_default=True,
+              help="Working-set budget shared by the chunks gridded at the same time (per "
+              "worker process with a scheduler address); lowers --chunk-rows if needed.")
 @click.option("--epsilon", type=float, default=1e-6, show_default=True,
               help="wgrid accuracy (relative, ducc0).")
-@click.option("--threads", type=click.IntRange(min=1), default=2, show_default=True,
-              help="Threads for the wgrid gridder.")
+@click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Threads of the wgrid gridder per chunk (parallelism comes from the "
+              "chunks, --workers). The cube depends on it at the --epsilon level: ducc0 "
+              "chooses its kernel by thread count.")
+@parallel_options
 def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, beam_area_sr,
-         images, stokes, fov_deg, beam_fwhm_deg, taper, chunk_rows, epsilon, threads):
+         images, stokes, fov_deg, beam_fwhm_deg, taper, chunk_rows, memory_limit, epsilon,
+         threads, scheduler, workers):
     """Grid Stokes I, Q, U, V (and P = Q + iU) visibilities of MS, channel by channel, on
     square uv cells with natural weighting, both Hermitian halves. Flags (FLAG, FLAG_ROW)
     and weights (WEIGHT_SPECTRUM or WEIGHT) are honoured; autocorrelations are skipped.
+    Several MSs (e.g. one per subband) are put on one frequency axis in frequency order:
+    overlapping channels are an error, missing channels are left empty and reported.
 
     \b
     Examples:
       msleak grid obs.ms --column MODEL_DATA -o grid.h5
       msleak grid obs.ms --uv-range 30,800 --split even-odd -o grid.h5
+      msleak grid SB000.ms SB001.ms SB002.ms --scheduler processes -o grid.h5
       msleak grid --image q.fits --image u.fits --stokes Q,U --fov 4 -o grid.h5
     """
     from msleak.io.products import save_product
@@ -85,10 +101,14 @@ def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, bea
     else:
         from msleak.ps.uvcube import grid_ms
 
-        ds = grid_ms(ms, column=column, cell=cell, uv_range=tuple(uv_range), gridder=gridder,
-                     split=split, field_id=field_id, ddid=ddid, chunk_rows=chunk_rows,
-                     epsilon=epsilon, nthreads=threads, beam_area_sr=beam_area_sr, taper=taper,
-                     progress=sys.stderr.isatty())
+        ds = grid_ms(list(ms), column=column, cell=cell, uv_range=tuple(uv_range),
+                     gridder=gridder, split=split, field_id=field_id, ddid=ddid,
+                     chunk_rows=chunk_rows, epsilon=epsilon, nthreads=threads,
+                     beam_area_sr=beam_area_sr, taper=taper, progress=sys.stderr.isatty(),
+                     scheduler=scheduler, workers=workers, memory_limit=memory_limit)
+        if ds.attrs.get("n_gap_channels"):
+            click.echo(f"warning: {ds.attrs['n_gap_channels']} channel(s) missing between the "
+                       f"Measurement Sets ({ds.attrs['freq_gaps']}) are left empty", err=True)
     save_product(ds, output, "uvcube")
     n = int((ds["weight"].values > 0).any(axis=0).sum())
     click.echo(f"uv cube {output}: {ds.sizes['freq']} channels, {ds.sizes['u']}x{ds.sizes['v']} "

@@ -6,6 +6,8 @@ import re
 
 import click
 
+from msleak.parallel.options import parallel_options
+
 __all__ = ["predict", "parse_memory"]
 
 _UNITS = {"": 1, "B": 1, "K": 1024, "KB": 1024, "KIB": 1024, "M": 1024**2, "MB": 1024**2,
@@ -43,7 +45,7 @@ def _split(_ctx, _param, value):
 
 
 @click.command("predict")
-@click.argument("ms", type=click.Path(file_okay=False))
+@click.argument("ms", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.option("--sky", "sky", required=True, type=click.Path(dir_okay=False),
               help="Sky model: a FITS cube (Q/U[/I/V] x frequency, each voxel a point source "
                    "at its channel; Jy/pixel or K) or a makesourcedb text file (Jy).")
@@ -64,7 +66,8 @@ def _split(_ctx, _param, value):
 @click.option("--double", is_flag=True,
               help="complex128 arithmetic (default complex64; phases always in float64).")
 @click.option("--memory-limit", type=_Memory(), default="2GB", show_default=True,
-              help="Working-set budget, e.g. 2GB, 512MB (binary units).")
+              help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
+                   "computed at the same time (per worker process with a scheduler address).")
 @click.option("--overwrite-data", is_flag=True,
               help="Allow --column DATA (overwrites the observed visibilities).")
 @click.option("--field", "fields", callback=_split, default=None,
@@ -75,9 +78,11 @@ def _split(_ctx, _param, value):
               help="Start over instead of resuming an interrupted run with the same settings.")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
+@parallel_options
 def predict(ms, sky, fov_deg, beam, column, no_centre, interpolate_frequency, double,
-            memory_limit, overwrite_data, fields, spws, restart, progress):
-    """Predict the visibilities of SKY through the station beams into MS.
+            memory_limit, overwrite_data, fields, spws, restart, progress, scheduler, workers):
+    """Predict the visibilities of SKY through the station beams into MS (one or more
+    Measurement Sets, e.g. one per subband; each gets the same sky).
 
     Computes V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i (u l + v m + w (n - 1))) for
     every row, (u, v, w) = UVW / lambda from the MS (antenna 2 - antenna 1, the
@@ -87,18 +92,24 @@ def predict(ms, sky, fov_deg, beam, column, no_centre, interpolate_frequency, do
     default removes the beam at the phase centre. DATA and FLAG are never touched
     (unless --column DATA --overwrite-data). An interrupted run leaves the column marked
     incomplete (keyword MSLEAK_PREDICT); rerunning the same command resumes it.
+    Time chunks of all the MSs are computed in parallel (--scheduler, --workers) and
+    written by this process in time order (docs/parallel.md).
 
     \b
     Examples:
       msleak predict obs.ms --sky sky.fits --fov 9
       msleak predict obs.ms --sky sources.skymodel --beam none --column MODEL_NOBEAM
+      msleak predict SB*.ms --sky sky.fits --scheduler tcp://head:8786
     """
-    from msleak.predict.engine import predict as run
+    from msleak.predict.engine import predict_many
 
-    result = run(ms, sky, fov_deg=fov_deg, beam=beam, column=column,
-                 centre_correction=not no_centre, interpolate_frequency=interpolate_frequency,
-                 double=double, memory_limit=memory_limit, overwrite_data=overwrite_data,
-                 fields=fields, spws=spws, restart=restart, progress=progress)
-    click.echo(f"{result.ms}: wrote {result.rows_written} rows into {result.column}"
-               f"{' (resumed run)' if result.resumed else ''} in {result.seconds:.1f} s",
-               err=True)
+    results = predict_many(ms, sky, fov_deg=fov_deg, beam=beam, column=column,
+                           centre_correction=not no_centre,
+                           interpolate_frequency=interpolate_frequency, double=double,
+                           memory_limit=memory_limit, overwrite_data=overwrite_data,
+                           fields=fields, spws=spws, restart=restart, progress=progress,
+                           scheduler=scheduler, workers=workers)
+    for result in results:
+        click.echo(f"{result.ms}: wrote {result.rows_written} rows into {result.column}"
+                   f"{' (resumed run)' if result.resumed else ''} in {result.seconds:.1f} s",
+                   err=True)

@@ -19,6 +19,7 @@ The run state (provenance, ``complete`` flag, progress) is the column keyword de
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -26,10 +27,12 @@ import logging
 import math
 import os
 import sys
+import threading
 import time as _time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -41,7 +44,7 @@ from msleak.predict import kernels
 from msleak.predict.sky import SkyComponents, sky_components
 from msleak.predict.stations import station_coordinates
 
-__all__ = ["predict", "PredictResult", "DEFAULT_MEMORY_LIMIT", "plan_chunks"]
+__all__ = ["predict", "predict_many", "PredictResult", "DEFAULT_MEMORY_LIMIT", "plan_chunks"]
 
 log = logging.getLogger(__name__)
 
@@ -142,13 +145,28 @@ def _load_beam(name: str, ms: Path):
     return load_beam(name, ms)
 
 
+_BEAMS: dict = {}
+_BEAMS_LOCK = threading.Lock()
+
+
+def _cached_beam(name: str, ms: str, token: str):
+    """The beam model of ``ms`` for run ``token``, loaded once per process (any scheduler)."""
+    with _BEAMS_LOCK:
+        if token not in _BEAMS:
+            while len(_BEAMS) >= 8:
+                _BEAMS.pop(next(iter(_BEAMS)))
+            _BEAMS[token] = _load_beam(name, Path(ms))
+        return _BEAMS[token]
+
+
 def predict(ms: str | os.PathLike, sky: str | os.PathLike, *, fov_deg: float | None = None,
             beam: str = "everybeam", column: str = "MODEL_DATA",
             centre_correction: bool = True, interpolate_frequency: bool = False,
             double: bool = False, memory_limit: float = DEFAULT_MEMORY_LIMIT,
             overwrite_data: bool = False, fields: Sequence | None = None,
             spws: Sequence | None = None, restart: bool = False,
-            progress: bool | None = None, _fail_after_chunks: int | None = None
+            progress: bool | None = None, scheduler="sync", workers: int | None = None,
+            _fail_after_chunks: int | None = None, _fault: tuple | None = None
             ) -> PredictResult:
     """Predict beam-corrupted visibilities of a sky into a column of a Measurement Set.
 
@@ -173,23 +191,114 @@ def predict(ms: str | os.PathLike, sky: str | os.PathLike, *, fov_deg: float | N
     double : bool
         complex128 arithmetic (default complex64; phases are always float64).
     memory_limit : float
-        Working-set budget (bytes).
+        Working-set budget (bytes), shared by the tasks that run at the same time.
     fields, spws : sequence of int or str, optional
         FIELD ids or names, SPECTRAL_WINDOW ids; default all present.
     restart : bool
         Ignore the progress of an interrupted run and start over.
     progress : bool, optional
         Progress bar on stderr; default when stderr is a terminal.
+    scheduler : {"sync", "threads", "processes"} or str or distributed.Client
+        Where the time chunks are computed (:func:`msleak.parallel.open_runner`); the
+        chunks are written by this process in time order. "sync": the serial path.
+    workers : int, optional
+        Chunks computed at the same time (default: all cores / all worker threads).
 
     Returns
     -------
     PredictResult
     """
-    from msleak.io.ms import (check_ms, open_table, read_corr_types, read_data_descriptions,
-                              read_fields, read_spectral_windows)
+    return predict_many([ms], sky, fov_deg=fov_deg, beam=beam, column=column,
+                        centre_correction=centre_correction,
+                        interpolate_frequency=interpolate_frequency, double=double,
+                        memory_limit=memory_limit, overwrite_data=overwrite_data,
+                        fields=fields, spws=spws, restart=restart, progress=progress,
+                        scheduler=scheduler, workers=workers,
+                        _fail_after_chunks=_fail_after_chunks, _fault=_fault)[0]
+
+
+@dataclass
+class _Plan:
+    """What to predict into one MS, and its run state while it is being written."""
+
+    ms: Path
+    fields_meta: list
+    spw_meta: list
+    ddesc: list
+    groups: list
+    feeds: dict
+    total_rows: int
+    skies: dict
+    settings: dict
+    settings_json: str
+    beam_token: str
+    result: PredictResult
+    stack: contextlib.ExitStack | None = None
+    table: object = None
+    run_state: dict | None = None
+    progress_done: dict = field(default_factory=dict)
+
+
+@dataclass
+class _Chunk:
+    """One time chunk of one (field, data description) of one MS: the input of a task."""
+
+    index: int
+    plan: int
+    key: str
+    ms: str
+    beam: str
+    beam_token: str
+    comp: SkyComponents
+    times: np.ndarray
+    freq: np.ndarray
+    stations: np.ndarray
+    fmeta: object
+    rows: np.ndarray
+    tidx: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    uvw: np.ndarray
+    centre_correction: bool
+    dtype: str
+    nc_chunk: int
+    circular: bool
+    last: bool = False
+    fault: tuple | None = None
+
+    @property
+    def name(self) -> str:
+        return f"{Path(self.ms).name} {self.key} chunk {self.index}"
+
+
+def predict_many(ms_list: Sequence[str | os.PathLike], sky: str | os.PathLike, *,
+                 fov_deg: float | None = None, beam: str = "everybeam",
+                 column: str = "MODEL_DATA", centre_correction: bool = True,
+                 interpolate_frequency: bool = False, double: bool = False,
+                 memory_limit: float = DEFAULT_MEMORY_LIMIT, overwrite_data: bool = False,
+                 fields: Sequence | None = None, spws: Sequence | None = None,
+                 restart: bool = False, progress: bool | None = None, scheduler="sync",
+                 workers: int | None = None, _fail_after_chunks: int | None = None,
+                 _fault: tuple | None = None) -> list[PredictResult]:
+    """:func:`predict` into each of several Measurement Sets (e.g. one per subband).
+
+    Every MS is checked and its sky prepared before anything is written; the time
+    chunks of all MSs are then computed on ``scheduler`` and written by this process,
+    MS after MS, in time order (so the resume markers stay exact). Options as
+    :func:`predict`; returns one :class:`PredictResult` per MS, in the order given.
+    """
+    from msleak.io.ms import check_ms
+    from msleak.parallel import open_runner
 
     t_start = _time.perf_counter()
-    ms = check_ms(ms)
+    paths = [check_ms(m) for m in ms_list]
+    if not paths:
+        raise InputError("no Measurement Set given")
+    seen: dict[Path, Path] = {}
+    for p in paths:
+        if p.resolve() in seen:
+            raise InputError(f"{p} is given twice")
+        seen[p.resolve()] = p
     sky = Path(sky)
     colio.check_column_name(column, overwrite_data=overwrite_data)
     if not sky.exists():
@@ -198,8 +307,72 @@ def predict(ms: str | os.PathLike, sky: str | os.PathLike, *, fov_deg: float | N
         raise InputError(f"--fov must be in (0, 180] deg, got {fov_deg}")
     if memory_limit <= 0:
         raise InputError("--memory-limit must be positive")
-    colio.check_writable(ms)
+    for p in paths:
+        colio.check_writable(p)
+        colio.repair_interrupted(p)  # header files a killed run may have truncated
     dtype = np.dtype(np.complex128 if double else np.complex64)
+    sky_sha = _sha256(sky)
+    opts = dict(fov_deg=fov_deg, beam=beam, centre_correction=centre_correction,
+                interpolate_frequency=interpolate_frequency, dtype=dtype, fields=fields,
+                spws=spws, column=column)
+    plans = [_make_plan(p, sky, sky_sha, **opts) for p in paths]
+
+    with open_runner(scheduler, workers, memory_limit) as runner:
+        if runner.kind in ("processes", "distributed"):
+            for plan in plans:
+                model = _BEAMS.get(plan.beam_token)
+                if type(model).__name__ == "EveryBeamDirect":
+                    raise InputError("--beam everybeam-direct reads the MS main table, which "
+                                     "stays locked while predict writes it; use --scheduler "
+                                     "threads or sync")
+        for plan in plans:  # create the columns first: no error after the first write
+            with colio.open_for_writing(plan.ms) as table:
+                plan.result.created_column = colio.ensure_data_column(table, column)
+        setup = _time.perf_counter() - t_start
+        for plan in plans:
+            plan.result.timings["setup"] = setup
+        bar = _progress_bar(sum(p.total_rows for p in plans), progress)
+        jobs = _all_chunks(plans, runner.memory_per_task, dtype, centre_correction, beam,
+                           column, restart, bar, _fault, t_start)
+        chunks_done = 0
+        try:
+            with contextlib.closing(runner.map(_chunk_task, jobs)) as done:
+                for job, (vis, timings) in done:
+                    plan = plans[job.plan]
+                    res = plan.result
+                    tick = _time.perf_counter()
+                    colio.write_rows(plan.table, column, job.rows, vis)
+                    del vis
+                    state = plan.run_state
+                    state["rows_done"] += int(job.rows.size)
+                    state["progress"][job.key] = float(job.times[-1])
+                    state["updated"] = _now()
+                    colio.write_run_state(plan.table, column, state)
+                    _add(res.timings, "write", tick)
+                    for key, value in timings.items():
+                        res.timings[key] = res.timings.get(key, 0.0) + value
+                    res.n_slots += int(job.times.size)
+                    res.rows_written += int(job.rows.size)
+                    bar.update(int(job.rows.size))
+                    chunks_done += 1
+                    if _fail_after_chunks is not None and chunks_done >= _fail_after_chunks:
+                        raise RuntimeError("simulated failure (test hook)")
+                    if job.last:
+                        _finish(plan, column, t_start)
+        finally:
+            bar.close()
+            for plan in plans:
+                if plan.stack is not None:
+                    plan.stack.close()
+                    plan.stack = None
+    return [plan.result for plan in plans]
+
+
+def _make_plan(ms: Path, sky: Path, sky_sha: str, *, fov_deg, beam, centre_correction,
+               interpolate_frequency, dtype, fields, spws, column) -> _Plan:
+    """Read the metadata of ``ms``, select its groups and prepare the sky (no writes)."""
+    from msleak.io.ms import (open_table, read_corr_types, read_data_descriptions,
+                              read_fields, read_spectral_windows)
 
     fields_meta = read_fields(ms)
     spw_meta = read_spectral_windows(ms)
@@ -218,7 +391,7 @@ def predict(ms: str | os.PathLike, sky: str | os.PathLike, *, fov_deg: float | N
             if ddesc[d][0] in spw_ids:
                 groups.append((f, d))
     if not groups:
-        raise InputError("no rows match the field / spectral-window selection")
+        raise InputError(f"{ms}: no rows match the field / spectral-window selection")
     feeds = {d: feed_type_from_corr_types(corr_types[ddesc[d][1]]) for _, d in groups}
     total_rows = int(sum(np.count_nonzero((field_col == f) & (ddid_col == d)) for f, d in groups))
     del field_col, ddid_col
@@ -229,115 +402,169 @@ def predict(ms: str | os.PathLike, sky: str | os.PathLike, *, fov_deg: float | N
         fmeta = fields_meta[f]
         skies[(f, d)] = sky_components(sky, spw_meta[ddesc[d][0]].freq, fmeta.ra, fmeta.dec,
                                        fov_deg=fov_deg, interpolate=interpolate_frequency)
-    beam_model = _load_beam(beam, ms)
+    token = uuid.uuid4().hex
+    with _BEAMS_LOCK:
+        _BEAMS[token] = _load_beam(beam, ms)
 
-    settings = {"sky": str(sky.resolve()), "sky_sha256": _sha256(sky),
+    settings = {"sky": str(sky.resolve()), "sky_sha256": sky_sha,
                 "fov_deg": -1.0 if fov_deg is None else float(fov_deg), "beam": beam,
                 "centre_correction": bool(centre_correction and beam != "none"),
                 "interpolate_frequency": bool(interpolate_frequency),
                 "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
                 "msleak_version": __version__}
-    settings_json = json.dumps(settings, sort_keys=True)
-    result = PredictResult(ms=ms, column=column, rows_written=0, groups=groups)
+    return _Plan(ms=ms, fields_meta=fields_meta, spw_meta=spw_meta, ddesc=ddesc,
+                 groups=groups, feeds=feeds, total_rows=total_rows, skies=skies,
+                 settings=settings, settings_json=json.dumps(settings, sort_keys=True),
+                 beam_token=token,
+                 result=PredictResult(ms=ms, column=column, rows_written=0, groups=groups))
 
-    with open_table(ms, readonly=False) as table:
-        result.created_column = colio.ensure_data_column(table, column)
-        state = colio.read_run_state(table, column)
-        progress_done: dict[str, float] = {}
-        if (state and not restart and not bool(state.get("complete", True))
-                and state.get("settings_json") == settings_json):
-            progress_done = {k: float(v) for k, v in dict(state.get("progress", {})).items()}
-            result.resumed = True
-            log.info("resuming an interrupted predict into %s (%d rows done)", column,
-                     int(state.get("rows_done", 0)))
+
+def _start(plan: _Plan, column: str, restart: bool, bar) -> None:
+    """Open the MS for writing, decide resume or restart, and store the run state."""
+    plan.stack = contextlib.ExitStack()
+    table = plan.table = plan.stack.enter_context(colio.open_for_writing(plan.ms))
+    colio.ensure_data_column(table, column)
+    state = colio.read_run_state(table, column)
+    if (state and not restart and not bool(state.get("complete", True))
+            and state.get("settings_json") == plan.settings_json):
+        plan.progress_done = {k: float(v) for k, v in dict(state.get("progress", {})).items()}
+        plan.result.resumed = True
+        log.info("%s: resuming an interrupted predict into %s (%d rows done)", plan.ms, column,
+                 int(state.get("rows_done", 0)))
+    else:
+        state = None
+    plan.run_state = {**plan.settings, "settings_json": plan.settings_json,
+                      "stokes_convention": STOKES_CONVENTION,
+                      "phase_convention": "V_pq = sum_s J_p B_s J_q^H exp(+2 pi i (u l + v m + "
+                                          "w (n - 1))), (u, v, w) = UVW / lambda with UVW = "
+                                          "antenna2 - antenna1 (MS and DP3 convention)",
+                      "complete": False,
+                      "rows_done": int(state.get("rows_done", 0)) if state else 0,
+                      "progress": dict(plan.progress_done),
+                      "started": state.get("started", _now()) if state else _now(),
+                      "updated": _now()}
+    colio.write_run_state(table, column, plan.run_state)
+    if plan.result.resumed:
+        bar.update(plan.run_state["rows_done"])
+
+
+def _finish(plan: _Plan, column: str, t_start: float) -> None:
+    """Mark the column complete and release the MS."""
+    state = plan.run_state
+    state["complete"] = True
+    state["finished"] = _now()
+    state["updated"] = state["finished"]
+    colio.write_run_state(plan.table, column, state)
+    plan.stack.close()
+    plan.stack = plan.table = None
+    res = plan.result
+    res.seconds = _time.perf_counter() - t_start
+    log.info("%s: predicted %d rows into %s in %.1f s", plan.ms, res.rows_written, column,
+             res.seconds)
+
+
+def _all_chunks(plans, memory_per_task, dtype, centre_correction, beam, column, restart,
+                bar, fault, t_start) -> Iterator[_Chunk]:
+    """The chunks of every MS in write order; each MS is opened when its turn comes and
+    finished right away when nothing is left to predict."""
+    index = 0
+    for k, plan in enumerate(plans):
+        _start(plan, column, restart, bar)
+        previous = None
+        for job in _plan_chunks(k, plan, memory_per_task, dtype, centre_correction, beam):
+            job.index, job.fault = index, fault
+            index += 1
+            if previous is not None:
+                yield previous
+            previous = job
+        if previous is None:
+            _finish(plan, column, t_start)
         else:
-            state = None
-        run_state = {**settings, "settings_json": settings_json,
-                     "stokes_convention": STOKES_CONVENTION,
-                     "phase_convention": "V_pq = sum_s J_p B_s J_q^H exp(+2 pi i (u l + v m + "
-                                         "w (n - 1))), (u, v, w) = UVW / lambda with UVW = "
-                                         "antenna2 - antenna1 (MS and DP3 convention)",
-                     "complete": False,
-                     "rows_done": int(state.get("rows_done", 0)) if state else 0,
-                     "progress": dict(progress_done),
-                     "started": state.get("started", _now()) if state else _now(),
-                     "updated": _now()}
-        colio.write_run_state(table, column, run_state)
+            previous.last = True
+            yield previous
 
-        result.timings["setup"] = _time.perf_counter() - t_start
-        bar = _progress_bar(total_rows, progress)
-        if result.resumed:
-            bar.update(run_state["rows_done"])
+
+def _plan_chunks(k: int, plan: _Plan, memory_per_task: float, dtype, centre_correction,
+                 beam) -> Iterator[_Chunk]:
+    """Time chunks of one MS (reads TIME/ANTENNA and each chunk's UVW here, in the driver)."""
+    table, res = plan.table, plan.result
+    has_beam = beam != "none"
+    for f, d in plan.groups:
+        key = f"f{f}_d{d}"
+        comp = plan.skies[(f, d)]
+        res.n_sources[key] = comp.ndir
+        fmeta = plan.fields_meta[f]
+        freq = plan.spw_meta[plan.ddesc[d][0]].freq
+        sel = table.query(f"FIELD_ID=={f} && DATA_DESC_ID=={d}", columns="TIME,ANTENNA1,ANTENNA2")
         try:
-            chunks_done = 0
-            for f, d in groups:
-                key = f"f{f}_d{d}"
-                comp = skies[(f, d)]
-                result.n_sources[key] = comp.ndir
-                fmeta = fields_meta[f]
-                freq = spw_meta[ddesc[d][0]].freq
-                sel = table.query(f"FIELD_ID=={f} && DATA_DESC_ID=={d}", columns="TIME,ANTENNA1,ANTENNA2")
-                try:
-                    rows_all = np.asarray(sel.rownumbers(table), dtype=np.int64)
-                    time_all = sel.getcol("TIME")
-                    a1_all = sel.getcol("ANTENNA1")
-                    a2_all = sel.getcol("ANTENNA2")
-                finally:
-                    sel.close()
-                times = np.unique(time_all)
-                last = progress_done.get(key)
-                if last is not None:
-                    times = times[times > last]
-                stations = np.unique(np.concatenate([a1_all, a2_all]))
-                st_index = np.full(int(stations.max()) + 1, -1, dtype=np.int64)
-                st_index[stations] = np.arange(stations.size)
-                rows_per_time = int(math.ceil(rows_all.size / max(1, np.unique(time_all).size)))
-                fixed = comp.nbytes + rows_all.size * 28
-                nt_chunk, nc_chunk = plan_chunks(times.size, freq.size, stations.size,
-                                                 comp.ndir, rows_per_time, memory_limit,
-                                                 dtype.itemsize, beam_model is not None, fixed)
-                log.info("field %d, data description %d: %d sources, %d stations, %d times "
-                         "(%d per chunk), %d channels (%d per chunk), feeds %s", f, d,
-                         comp.ndir, stations.size, times.size, nt_chunk, freq.size, nc_chunk,
-                         feeds[d])
-                for t0 in range(0, times.size, nt_chunk):
-                    tchunk = times[t0:t0 + nt_chunk]
-                    in_chunk = (time_all >= tchunk[0]) & (time_all <= tchunk[-1])
-                    rows = rows_all[in_chunk]
-                    tidx = np.searchsorted(tchunk, time_all[in_chunk])
-                    p = st_index[a1_all[in_chunk]]
-                    q = st_index[a2_all[in_chunk]]
-                    tick = _time.perf_counter()
-                    uvw = colio.read_rows(table, "UVW", rows)
-                    _add(result.timings, "read", tick)
-                    vis = _predict_chunk(comp, beam_model, tchunk, freq, stations, fmeta,
-                                         tidx, p, q, uvw, centre_correction, dtype, nc_chunk,
-                                         result.timings)
-                    if feeds[d] == "circular":
-                        vis = kernels.linear_to_circular(vis)
-                    tick = _time.perf_counter()
-                    colio.write_rows(table, column, rows, vis)
-                    del vis
-                    run_state["rows_done"] += int(rows.size)
-                    run_state["progress"][key] = float(tchunk[-1])
-                    run_state["updated"] = _now()
-                    colio.write_run_state(table, column, run_state)
-                    _add(result.timings, "write", tick)
-                    result.n_slots += int(tchunk.size)
-                    result.rows_written += int(rows.size)
-                    bar.update(int(rows.size))
-                    chunks_done += 1
-                    if _fail_after_chunks is not None and chunks_done >= _fail_after_chunks:
-                        raise RuntimeError("simulated failure (test hook)")
-            run_state["complete"] = True
-            run_state["finished"] = _now()
-            run_state["updated"] = run_state["finished"]
-            colio.write_run_state(table, column, run_state)
+            rows_all = np.asarray(sel.rownumbers(table), dtype=np.int64)
+            time_all = sel.getcol("TIME")
+            a1_all = sel.getcol("ANTENNA1")
+            a2_all = sel.getcol("ANTENNA2")
         finally:
-            bar.close()
-    result.seconds = _time.perf_counter() - t_start
-    log.info("predicted %d rows into %s in %.1f s", result.rows_written, column, result.seconds)
-    return result
+            sel.close()
+        times = np.unique(time_all)
+        last = plan.progress_done.get(key)
+        if last is not None:
+            times = times[times > last]
+        stations = np.unique(np.concatenate([a1_all, a2_all]))
+        st_index = np.full(int(stations.max()) + 1, -1, dtype=np.int64)
+        st_index[stations] = np.arange(stations.size)
+        rows_per_time = int(math.ceil(rows_all.size / max(1, np.unique(time_all).size)))
+        fixed = comp.nbytes + rows_all.size * 28
+        nt_chunk, nc_chunk = plan_chunks(times.size, freq.size, stations.size, comp.ndir,
+                                         rows_per_time, memory_per_task, dtype.itemsize,
+                                         has_beam, fixed)
+        log.info("%s field %d, data description %d: %d sources, %d stations, %d times "
+                 "(%d per chunk), %d channels (%d per chunk), feeds %s", plan.ms.name, f, d,
+                 comp.ndir, stations.size, times.size, nt_chunk, freq.size, nc_chunk,
+                 plan.feeds[d])
+        for t0 in range(0, times.size, nt_chunk):
+            tchunk = times[t0:t0 + nt_chunk]
+            in_chunk = (time_all >= tchunk[0]) & (time_all <= tchunk[-1])
+            rows = rows_all[in_chunk]
+            tick = _time.perf_counter()
+            uvw = colio.read_rows(table, "UVW", rows)
+            _add(res.timings, "read", tick)
+            yield _Chunk(index=0, plan=k, key=key, ms=str(plan.ms), beam=beam,
+                         beam_token=plan.beam_token, comp=comp, times=tchunk, freq=freq,
+                         stations=stations, fmeta=fmeta, rows=rows,
+                         tidx=np.searchsorted(tchunk, time_all[in_chunk]),
+                         p=st_index[a1_all[in_chunk]], q=st_index[a2_all[in_chunk]], uvw=uvw,
+                         centre_correction=centre_correction, dtype=dtype.name,
+                         nc_chunk=nc_chunk, circular=plan.feeds[d] == "circular")
+
+
+def _chunk_task(job: _Chunk, _shared=None) -> tuple[np.ndarray, dict]:
+    """Visibilities (nrow, nchan, 4) of one chunk and the task's stage timings (pure
+    computation on the job's arrays; the beam model is loaded once per process)."""
+    if job.fault is not None:
+        _simulate_fault(job)
+    beam_model = _cached_beam(job.beam, job.ms, job.beam_token)
+    timings: dict = {}
+    vis = _predict_chunk(job.comp, beam_model, job.times, job.freq, job.stations, job.fmeta,
+                         job.tidx, job.p, job.q, job.uvw, job.centre_correction,
+                         np.dtype(job.dtype), job.nc_chunk, timings)
+    if job.circular:
+        vis = kernels.linear_to_circular(vis)
+    return vis, timings
+
+
+def _simulate_fault(job: _Chunk) -> None:
+    """Test hook: ``fault = (chunk index, marker path or None)`` kills the dask worker
+    running that chunk (once if a marker path is given, else every time)."""
+    index, marker = job.fault
+    if job.index != index or (marker and Path(marker).exists()):
+        return
+    if marker:
+        Path(marker).touch()
+    try:
+        from distributed import get_worker
+
+        get_worker()
+    except (ImportError, ValueError):
+        raise RuntimeError("simulated failure (test hook)") from None
+    os._exit(70)
 
 
 def _predict_chunk(comp: SkyComponents, beam_model, times: np.ndarray, freq: np.ndarray,

@@ -11,6 +11,8 @@ from __future__ import annotations
 import logging
 import math
 import os
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Literal, Sequence
 
 import numpy as np
@@ -19,14 +21,18 @@ import xarray as xr
 from msleak.conventions import (STOKES, STOKES_CONVENTION, correlations_to_stokes,
                                 feed_type_from_corr_types)
 from msleak.errors import InputError
-from msleak.ps.gridding import (GRIDDER_DESCRIPTIONS, SPEED_OF_LIGHT, make_accumulator,
-                                make_grid, stokes_weights, taper_area_sr)
+from msleak.ps.gridding import (DEFAULT_TAPER, GRIDDER_DESCRIPTIONS, SPEED_OF_LIGHT,
+                                make_accumulator, make_grid, response_attrs, stokes_weights)
 
 __all__ = ["grid_ms", "uvcube_dataset", "Split"]
 
 log = logging.getLogger(__name__)
 
 Split = Literal["even-odd", "first-second"]
+
+#: samples (rows x channels) per chunk task by default: big batches keep the w-gridder's
+#: per-call cost (FFTs of its w-planes) small
+AUTO_CHUNK_SAMPLES = 2_000_000
 
 
 def uvcube_dataset(vis4: np.ndarray, weight: np.ndarray, freq: np.ndarray,
@@ -79,6 +85,19 @@ def _weight_column(ms, columns: list[str]) -> str:
     return ""
 
 
+def _check_complete(ms, column: str) -> None:
+    """Refuse a column that an interrupted ``msleak predict`` left half written."""
+    from msleak.io.columns import read_run_state
+    from msleak.io.ms import open_table
+
+    with open_table(ms) as t:
+        state = read_run_state(t, column)
+    if state is not None and not bool(state.get("complete", True)):
+        raise InputError(f"{ms}: column {column} is incomplete (msleak predict was interrupted "
+                         f"after {int(state.get('rows_done', 0))} rows); rerun that predict "
+                         "command to finish it")
+
+
 def _baseline_span(ms, field_id: int, ddid: int) -> tuple[float, float]:
     """Shortest and longest cross-correlation baseline sqrt(u^2 + v^2) (m) of the selection."""
     from msleak.io import ms as msio
@@ -96,54 +115,63 @@ def _baseline_span(ms, field_id: int, ddid: int) -> tuple[float, float]:
     return lo, hi
 
 
-def grid_ms(ms: str | os.PathLike, *, column: str = "DATA", cell: float = 16.0,
-            uv_range: tuple[float, float] = (30.0, 180.0), gridder: str = "wgrid",
-            split: Split | None = None, field_id: int = 0, ddid: int = 0,
-            chunk_rows: int = 20_000, epsilon: float = 1e-6, nthreads: int = 1,
-            beam_area_sr: float | None = None, taper: str = "hann",
-            progress: bool = False) -> xr.Dataset:
-    """Grid one column of a Measurement Set into a uvcube Dataset.
+@dataclass(frozen=True)
+class _Input:
+    """One Measurement Set to grid: its checked metadata and selected rows."""
 
-    Parameters
-    ----------
-    ms : path
-    column : str
-        Any visibility column (DATA, MODEL_DATA, CORRECTED_DATA, ...), (row, chan, corr).
-    cell : float
-        Cell size, wavelengths.
-    uv_range : (min, max)
-        Baseline lengths kept, wavelengths, per channel (sqrt(u^2 + v^2)).
-    gridder : {'wgrid', 'cell'}
-        See :mod:`msleak.ps.gridding`.
-    split : {'even-odd', 'first-second'}, optional
-        Also grid two halves of the time steps into ``vis_a``/``vis_b``.
-    field_id, ddid : int
-        FIELD_ID and DATA_DESC_ID of the rows used.
-    chunk_rows : int
-        Rows read at a time (memory ~ chunk_rows * nchan * 100 bytes).
-    beam_area_sr : float, optional
-        Primary-beam area Omega (sr) recorded for the mK^2 Mpc^3 normalisation; default
-        the area the gridder sees: ``int A^2 dOmega`` of the ``wgrid`` taper, or
-        ``1 / cell^2`` for the ``cell`` gridder (its sinc^2 response integrates to that).
-    taper : {'hann', 'none'}
-        Image-domain taper of the ``wgrid`` gridder (see :func:`~msleak.ps.gridding.image_taper`).
+    ms: str
+    freq: np.ndarray
+    width: np.ndarray
+    feed: str
+    spw_id: int
+    field: object
+    wcol: str
+    cols: tuple
+    rows: np.ndarray
+    b_lo: float
+    b_hi: float
 
-    Raises
-    ------
-    InputError
-        Unknown column, bad selection, unsupported correlations, no unflagged data, or no
-        data in the uv range.
-    """
+
+@dataclass(frozen=True)
+class _Spec:
+    """Settings every chunk task needs (shared by the tasks)."""
+
+    column: str
+    gridder: str
+    grid: object
+    uv_min: float
+    uv_max: float
+    epsilon: float
+    nthreads: int | None
+    taper: str
+    split: str | None
+    split_times: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class _Job:
+    """Rows ``rows`` of input ``k``: one task."""
+
+    index: int
+    k: int
+    inp: _Input
+    rows: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return f"{Path(self.inp.ms).name} rows {int(self.rows[0])}..{int(self.rows[-1])}"
+
+
+def _grid_input(ms, column: str, field_id: int, ddid: int) -> _Input:
+    """Check one MS for gridding (column, DATA_DESC_ID, FIELD_ID, channels, baselines)."""
     from msleak.io import ms as msio
 
     ms = msio.check_ms(ms)
-    uv_min, uv_max = (float(x) for x in uv_range)
-    if not (0 <= uv_min < uv_max):
-        raise InputError(f"uv range {uv_min}..{uv_max} wavelengths is empty: need 0 <= MIN < MAX")
     columns = msio.column_names(ms)
     if column not in columns:
         data_cols = [c for c in columns if c.endswith("DATA")]
         raise InputError(f"{ms}: no column {column!r} (data columns: {', '.join(data_cols)})")
+    _check_complete(ms, column)
     ddids = msio.read_data_descriptions(ms)
     if not 0 <= ddid < len(ddids):
         raise InputError(f"{ms}: no DATA_DESC_ID {ddid} (the MS has {len(ddids)})")
@@ -158,124 +186,341 @@ def grid_ms(ms: str | os.PathLike, *, column: str = "DATA", cell: float = 16.0,
         raise InputError(f"{ms}: channels are not evenly spaced; the delay transform "
                          "needs a regular frequency axis")
     b_lo, b_hi = _baseline_span(ms, field_id, ddid)
+    wcol = _weight_column(ms, columns)
+    cols = [column, "UVW", "FLAG", "ANTENNA1", "ANTENNA2", "TIME"]
+    cols += [c for c in ("FLAG_ROW",) if c in columns] + ([wcol] if wcol else [])
+    with msio.open_table(ms) as table:
+        sel = table.query(f"FIELD_ID=={int(field_id)} && DATA_DESC_ID=={int(ddid)}",
+                          columns="")
+        try:
+            rows = np.asarray(sel.rownumbers(table), dtype=np.int64)
+        finally:
+            sel.close()
+    return _Input(ms=str(ms), freq=freq, width=spw.width, feed=feed, spw_id=int(spw_id),
+                  field=fields[field_id], wcol=wcol, cols=tuple(cols), rows=rows,
+                  b_lo=b_lo, b_hi=b_hi)
+
+
+def _read_chunk(inp: _Input, rows: np.ndarray) -> dict:
+    """The gridding columns at ascending main-table ``rows`` (own read-only table)."""
+    from msleak.io.ms import open_table
+    from msleak.parallel import CASACORE_LOCK
+
+    first, n = int(rows[0]), int(rows.size)
+    contiguous = int(rows[-1]) - first + 1 == n
+    with CASACORE_LOCK, open_table(inp.ms) as table:
+        if contiguous:
+            return {c: table.getcol(c, startrow=first, nrow=n) for c in inp.cols}
+        sel = table.selectrows(rows.tolist())
+        try:
+            return {c: sel.getcol(c) for c in inp.cols}
+        finally:
+            sel.close()
+
+
+def _split_index(split: str, times: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Half (0 or 1) of each TIME ``t`` for the ``split`` of the sorted unique ``times``."""
+    if split == "even-odd":
+        return np.searchsorted(times, t) % 2
+    return (np.searchsorted(times, t) >= times.size // 2).astype(int)
+
+
+def _grid_task(job: _Job, spec: _Spec) -> tuple[list, dict]:
+    """Partial accumulators (one, or two with a split) of one chunk of rows, and counts."""
+    inp = job.inp
+    c = _read_chunk(inp, job.rows)
+    accs = [make_accumulator(spec.gridder, spec.grid, inp.freq, epsilon=spec.epsilon,
+                             nthreads=spec.nthreads or 1, taper=spec.taper)
+            for _ in range(2 if spec.split else 1)]
+    stats = dict(rows=0, samples=0, unflagged=0, in_range=0)
+    column = spec.column
+    freq = inp.freq
+    scale = freq / SPEED_OF_LIGHT
+    cross = c["ANTENNA1"] != c["ANTENNA2"]
+    if "FLAG_ROW" in c:
+        cross &= ~np.asarray(c["FLAG_ROW"], bool)
+    stats["rows"] += cross.size
+    data = c[column]
+    nrow, nchan, ncorr = data.shape
+    if ncorr != 4 or nchan != freq.size:
+        raise InputError(f"{inp.ms}: column {column} has shape (row, {nchan}, {ncorr}); "
+                         f"expected (row, {freq.size}, 4)")
+    # The MS's UVW column holds uvw_ANTENNA2 - uvw_ANTENNA1, and visibilities follow
+    # V = sum B exp(+2 pi i UVW . (l, m, n - 1)) (DP3's convention, which msleak predict
+    # reproduces: tests/test_predict_dp3.py). The gridding kernels use
+    # exp(-2 pi i (u l + v m + w (n - 1))), so they take u = -UVW.
+    uvw = -np.asarray(c["UVW"], float)
+    b_m = np.hypot(uvw[:, 0], uvw[:, 1])
+    uv_min, uv_max = spec.uv_min, spec.uv_max
+    keep = cross & (b_m * scale.max() >= uv_min) & (b_m * scale.min() <= uv_max)
+    stats["samples"] += int(cross.sum()) * nchan
+    wcol = inp.wcol
+    if wcol == "WEIGHT_SPECTRUM":
+        wcorr = c[wcol]
+    elif wcol == "WEIGHT":
+        wcorr = np.broadcast_to(c[wcol][:, None, :], data.shape)
+    else:
+        wcorr = np.ones(data.shape, np.float32)
+    flags = np.asarray(c["FLAG"], bool)
+    wgt_all = stokes_weights(wcorr[cross], flags[cross])
+    stats["unflagged"] += int(np.count_nonzero(wgt_all))
+    if not keep.any():
+        return accs, stats
+    wgt = stokes_weights(wcorr[keep], flags[keep])
+    uvw = uvw[keep]
+    b_l = b_m[keep, None] * scale[None, :]
+    wgt[(b_l < uv_min) | (b_l > uv_max)] = 0.0
+    stats["in_range"] += int(np.count_nonzero(wgt))
+    vis = np.moveaxis(correlations_to_stokes(data[keep], inp.feed), -1, 0)  # (4, row, chan)
+    vis = np.where(np.isfinite(vis), vis, 0.0)
+    wgt[~np.isfinite(data[keep]).all(axis=-1)] = 0.0
+    parts = [np.ones(uvw.shape[0], bool)]
+    if spec.split:
+        which = _split_index(spec.split, spec.split_times, c["TIME"][keep])
+        parts = [which == 0, which == 1]
+    for acc, sel in zip(accs, parts):
+        if not sel.any():
+            continue
+        if spec.gridder == "cell":
+            acc.add(uvw[sel, :1] * scale, uvw[sel, 1:2] * scale, vis[:, sel], wgt[sel])
+        else:
+            acc.add(uvw[sel], vis[:, sel], wgt[sel])
+    for acc in accs:  # grid here, in the task, not later in the process that adds them up
+        if hasattr(acc, "flush"):
+            acc.flush()
+    return accs, stats
+
+
+def _accumulator_bytes(spec: _Spec, nchan: int) -> int:
+    """Bytes of one partial accumulator of ``nchan`` channels (measured on a 1-channel one)."""
+    probe = make_accumulator(spec.gridder, spec.grid, np.array([1.5e8]), epsilon=spec.epsilon,
+                             nthreads=1, taper=spec.taper)
+    getattr(probe, "dirty", None)  # allocated on first use
+    total = 0
+    for obj in (probe, getattr(probe, "natural", None)):
+        for value in (vars(obj).values() if obj is not None else ()):
+            if isinstance(value, np.ndarray):
+                total += value.nbytes
+    return total * nchan
+
+
+def _rows_for_memory(budget: float, nchan: int, spec: _Spec) -> int:
+    """Rows per chunk so that a task's working set stays under ``budget`` bytes.
+
+    Per row and channel: the column, weights and flags as read (4 x 13 bytes), the
+    Stokes visibilities, their masked copy and the gridder's copy (3 x 4 x 16), float64
+    weights (3 x 8); fixed: the task's partial accumulators (one, or two with a split).
+    """
+    fixed = _accumulator_bytes(spec, nchan) * (2 if spec.split else 1)
+    per_row = nchan * (4 * 13 + 3 * 4 * 16 + 3 * 8) + 64
+    rows = int((budget - fixed) // per_row)
+    if rows < 1000:
+        log.warning("--memory-limit %.0f MB per task leaves little beside one chunk's grids "
+                    "(%.0f MB); going ahead with 1000 rows per chunk", budget / 2**20,
+                    fixed / 2**20)
+        return 1000
+    return rows
+
+
+def grid_ms(ms: str | os.PathLike | Sequence[str | os.PathLike], *, column: str = "DATA",
+            cell: float = 16.0, uv_range: tuple[float, float] = (30.0, 180.0),
+            gridder: str = "wgrid", split: Split | None = None, field_id: int = 0,
+            ddid: int = 0, chunk_rows: int | None = None, epsilon: float = 1e-6,
+            nthreads: int | None = 1, beam_area_sr: float | None = None,
+            taper: str = DEFAULT_TAPER, progress: bool = False, scheduler="sync",
+            workers: int | None = None, memory_limit: float | None = None) -> xr.Dataset:
+    """Grid one column of one or several Measurement Sets into a uvcube Dataset.
+
+    Parameters
+    ----------
+    ms : path or sequence of paths
+        One MS, or several (e.g. one per subband) whose channels are put on one regular
+        frequency axis in frequency order (:func:`msleak.parallel.frequency_layout`):
+        overlapping channels are an error; missing channels (a gap of whole channels) are
+        left empty (weight 0), logged as a warning and listed in the attributes
+        ``freq_gaps`` and ``n_gap_channels``. All must share the phase centre.
+    column : str
+        Any visibility column (DATA, MODEL_DATA, CORRECTED_DATA, ...), (row, chan, corr).
+    cell : float
+        Cell size, wavelengths.
+    uv_range : (min, max)
+        Baseline lengths kept, wavelengths, per channel (sqrt(u^2 + v^2)).
+    gridder : {'wgrid', 'cell'}
+        See :mod:`msleak.ps.gridding`.
+    split : {'even-odd', 'first-second'}, optional
+        Also grid two halves of the time steps into ``vis_a``/``vis_b`` (time steps of
+        all the inputs together).
+    field_id, ddid : int
+        FIELD_ID and DATA_DESC_ID of the rows used (in every input).
+    chunk_rows : int, optional
+        Rows per chunk task; default: 2 million samples (rows x channels), the batch the
+        wgrid gridder works best with. Memory: about chunk_rows * nchan * 270 bytes per
+        task, plus the task's partial grids.
+    nthreads : int, optional
+        Threads of the ducc0 gridder per task (None: 1). ducc0 picks its gridding kernel
+        with the thread count in its cost model, so cubes made with different counts
+        differ at the ``epsilon`` level (4e-7 measured); the same count on every
+        scheduler keeps the cube independent of it (1e-14).
+    beam_area_sr : float, optional
+        Primary-beam area Omega (sr) recorded for the mK^2 Mpc^3 normalisation; default
+        ``int A^2 R^2 dOmega`` with A the Airy power beam of a cell-wide station and R
+        the gridder's response (:func:`~msleak.ps.gridding.response_attrs`).
+    taper : {'cos2', 'hann'}
+        uv kernel of the ``wgrid`` gridder: ``cos2`` (one cell wide, response wider than
+        the station beam) or the legacy ``hann`` (~1.3 deg field); see
+        :mod:`msleak.ps.gridding`.
+    scheduler : {'sync', 'threads', 'processes'} or str or distributed.Client
+        Where the chunk tasks run (:func:`msleak.parallel.open_runner`). Each task reads
+        its rows from its own read-only table; the partial grids are summed here in
+        chunk order, so the result does not depend on the scheduler (up to the ducc0
+        gridder's own multi-threaded summation, ~1e-13 relative).
+    workers : int, optional
+        Tasks at a time (default: all cores / all worker threads).
+    memory_limit : float, optional
+        Bytes shared by the tasks running at the same time; lowers ``chunk_rows`` if
+        needed (default: no limit beyond ``chunk_rows``).
+
+    Raises
+    ------
+    InputError
+        Unknown column, bad selection, unsupported correlations, no unflagged data, no
+        data in the uv range, overlapping inputs or inputs that do not share a regular
+        frequency grid or a phase centre.
+    """
+    from msleak.io import ms as msio
+    from msleak.parallel import frequency_layout, open_runner
+
+    paths = [ms] if isinstance(ms, (str, os.PathLike)) else list(ms)
+    if not paths:
+        raise InputError("no Measurement Set given")
+    uv_min, uv_max = (float(x) for x in uv_range)
+    if not (0 <= uv_min < uv_max):
+        raise InputError(f"uv range {uv_min}..{uv_max} wavelengths is empty: need 0 <= MIN < MAX")
+    if chunk_rows is not None and chunk_rows <= 0:
+        raise InputError("chunk size must be positive")
+    inputs = [_grid_input(p, column, field_id, ddid) for p in paths]
+    names = [i.ms for i in inputs]
+    label = names[0] if len(names) == 1 else f"{len(names)} Measurement Sets"
+    if len(set(str(Path(n).resolve()) for n in names)) < len(names):
+        raise InputError("a Measurement Set is given twice")
+    layout = frequency_layout([i.freq for i in inputs], names, [i.width for i in inputs])
+    f0 = inputs[0].field
+    for inp in inputs[1:]:
+        sep = math.hypot((inp.field.ra - f0.ra) * math.cos(f0.dec), inp.field.dec - f0.dec)
+        if sep > 1e-8:
+            raise InputError(f"{inp.ms}: phase centre differs from {names[0]}'s by "
+                             f"{math.degrees(sep) * 3600:.3g} arcsec; grid one field at a time")
+    freq = layout.freq
+    b_lo = min(i.b_lo for i in inputs)
+    b_hi = max(i.b_hi for i in inputs)
     if b_hi * freq.max() / SPEED_OF_LIGHT < uv_min or b_lo * freq.min() / SPEED_OF_LIGHT > uv_max:
         raise InputError(
-            f"{ms}: no unflagged sample has a baseline in {uv_min:g}..{uv_max:g} wavelengths "
+            f"{label}: no unflagged sample has a baseline in {uv_min:g}..{uv_max:g} wavelengths "
             f"(baselines span {b_lo * freq.min() / SPEED_OF_LIGHT:.4g}.."
             f"{b_hi * freq.max() / SPEED_OF_LIGHT:.4g}); widen --uv-range")
     grid = make_grid(cell, min(uv_max, b_hi * freq.max() / SPEED_OF_LIGHT))
     if grid.size > 4096:
         raise InputError(f"the uv grid would be {grid.size}^2 cells per channel; use a larger "
                          "--cell or a smaller uv maximum")
-    wcol = _weight_column(ms, columns)
-    cols = [column, "UVW", "FLAG", "ANTENNA1", "ANTENNA2", "TIME"]
-    cols += [c for c in ("FLAG_ROW",) if c in columns] + ([wcol] if wcol else [])
-
-    split_of_time = None
+    if split not in (None, "even-odd", "first-second"):
+        raise InputError(f"unknown split {split!r}: use even-odd or first-second")
+    split_times = None
     if split is not None:
-        times = msio.read_times(ms, field_id=field_id, ddid=ddid)
-        if times.size < 2:
-            raise InputError(f"--split {split} needs at least two time steps, found {times.size}")
-        if split == "even-odd":
-            def split_of_time(t):
-                return np.searchsorted(times, t) % 2
-        elif split == "first-second":
-            def split_of_time(t):
-                return (np.searchsorted(times, t) >= times.size // 2).astype(int)
-        else:
-            raise InputError(f"unknown split {split!r}: use even-odd or first-second")
+        split_times = np.unique(np.concatenate(
+            [msio.read_times(i.ms, field_id=field_id, ddid=ddid) for i in inputs]))
+        if split_times.size < 2:
+            raise InputError(f"--split {split} needs at least two time steps, found "
+                             f"{split_times.size}")
+    spec = _Spec(column=column, gridder=gridder, grid=grid, uv_min=uv_min, uv_max=uv_max,
+                 epsilon=epsilon, nthreads=nthreads, taper=taper, split=split,
+                 split_times=split_times)
+    make_accumulator(gridder, grid, freq[:1], epsilon=epsilon, taper=taper)  # checks names
 
-    def new_acc():
-        return make_accumulator(gridder, grid, freq, epsilon=epsilon, nthreads=nthreads,
-                                taper=taper)
-
-    accs = [new_acc(), new_acc()] if split else [new_acc()]
+    totals: list = [None] * len(inputs)
     stats = dict(rows=0, samples=0, unflagged=0, in_range=0)
-    scale = freq / SPEED_OF_LIGHT
-    chunks = msio.iter_rows(ms, cols, chunk_rows=chunk_rows, field_id=field_id, ddid=ddid)
-    if progress:
-        from tqdm import tqdm
+    with open_runner(scheduler, workers, memory_limit or 2 * 1024**3) as runner:
+        nchan_max = max(i.freq.size for i in inputs)
+        step = int(chunk_rows) if chunk_rows else max(1000, AUTO_CHUNK_SAMPLES // nchan_max)
+        if memory_limit:
+            step = max(1, min(step, _rows_for_memory(runner.memory_per_task, nchan_max,
+                                                     spec)))
 
-        chunks = tqdm(chunks, desc="grid", unit="chunk", leave=False)
-    for _, c in chunks:
-        cross = c["ANTENNA1"] != c["ANTENNA2"]
-        if "FLAG_ROW" in c:
-            cross &= ~np.asarray(c["FLAG_ROW"], bool)
-        stats["rows"] += cross.size
-        data = c[column]
-        nrow, nchan, ncorr = data.shape
-        if ncorr != 4 or nchan != freq.size:
-            raise InputError(f"{ms}: column {column} has shape (row, {nchan}, {ncorr}); "
-                             f"expected (row, {freq.size}, 4)")
-        # The MS's UVW column holds uvw_ANTENNA2 - uvw_ANTENNA1, and visibilities follow
-        # V = sum B exp(+2 pi i UVW . (l, m, n - 1)) (DP3's convention, which msleak predict
-        # reproduces: tests/test_predict_dp3.py). The gridding kernels use
-        # exp(-2 pi i (u l + v m + w (n - 1))), so they take u = -UVW.
-        uvw = -np.asarray(c["UVW"], float)
-        b_m = np.hypot(uvw[:, 0], uvw[:, 1])
-        keep = cross & (b_m * scale.max() >= uv_min) & (b_m * scale.min() <= uv_max)
-        stats["samples"] += int(cross.sum()) * nchan
-        if wcol == "WEIGHT_SPECTRUM":
-            wcorr = c[wcol]
-        elif wcol == "WEIGHT":
-            wcorr = np.broadcast_to(c[wcol][:, None, :], data.shape)
-        else:
-            wcorr = np.ones(data.shape, np.float32)
-        flags = np.asarray(c["FLAG"], bool)
-        wgt_all = stokes_weights(wcorr[cross], flags[cross])
-        stats["unflagged"] += int(np.count_nonzero(wgt_all))
-        if not keep.any():
-            continue
-        wgt = stokes_weights(wcorr[keep], flags[keep])
-        uvw = uvw[keep]
-        b_l = b_m[keep, None] * scale[None, :]
-        wgt[(b_l < uv_min) | (b_l > uv_max)] = 0.0
-        stats["in_range"] += int(np.count_nonzero(wgt))
-        vis = np.moveaxis(correlations_to_stokes(data[keep], feed), -1, 0)  # (4, row, chan)
-        vis = np.where(np.isfinite(vis), vis, 0.0)
-        wgt[~np.isfinite(data[keep]).all(axis=-1)] = 0.0
-        parts = [np.ones(uvw.shape[0], bool)] if not split else None
-        if split:
-            which = split_of_time(c["TIME"][keep])
-            parts = [which == 0, which == 1]
-        for acc, sel in zip(accs, parts):
-            if not sel.any():
-                continue
-            if gridder == "cell":
-                acc.add(uvw[sel, :1] * scale, uvw[sel, 1:2] * scale, vis[:, sel], wgt[sel])
-            else:
-                acc.add(uvw[sel], vis[:, sel], wgt[sel])
+        def jobs():
+            index = 0
+            for k, inp in enumerate(inputs):
+                light = replace(inp, rows=inp.rows[:0])  # tasks get their own rows only
+                for start in range(0, inp.rows.size, step):
+                    yield _Job(index, k, light, inp.rows[start:start + step])
+                    index += 1
+
+        njobs = sum(-(-i.rows.size // step) for i in inputs)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=njobs, desc="grid", unit="chunk", leave=False)
+        try:
+            for job, (accs, st) in runner.map(_grid_task, jobs(), shared=spec):
+                k = job.k
+                totals[k] = accs if totals[k] is None else [
+                    a.merge(b) for a, b in zip(totals[k], accs)]
+                for key, value in st.items():
+                    stats[key] += value
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
+        scheduler_text = runner.describe()
     if stats["rows"] == 0:
-        raise InputError(f"{ms}: no cross-correlation rows for FIELD_ID {field_id}, "
+        raise InputError(f"{label}: no cross-correlation rows for FIELD_ID {field_id}, "
                          f"DATA_DESC_ID {ddid}")
     if stats["unflagged"] == 0:
-        raise InputError(f"{ms}: all {stats['samples']} samples of FIELD_ID {field_id}, "
+        raise InputError(f"{label}: all {stats['samples']} samples of FIELD_ID {field_id}, "
                          f"DATA_DESC_ID {ddid} are flagged (FLAG/FLAG_ROW/zero weights)")
     if stats["in_range"] == 0:
-        raise InputError(f"{ms}: no unflagged sample has a baseline in {uv_min:g}..{uv_max:g} "
+        raise InputError(f"{label}: no unflagged sample has a baseline in {uv_min:g}..{uv_max:g} "
                          "wavelengths; widen --uv-range")
-    log.info("gridded %d of %d unflagged samples (uv range %g..%g wavelengths)",
-             stats["in_range"], stats["unflagged"], uv_min, uv_max)
-    full = accs[0] if not split else accs[0].merge(accs[1])
-    vis4, weight = full.result()
-    halves = [a.result() for a in accs] if split else []
-    fov_rad = 1.0 / grid.cell
-    area = taper_area_sr(taper, grid) if gridder == "wgrid" else fov_rad ** 2
+    log.info("gridded %d of %d unflagged samples (uv range %g..%g wavelengths; %s)",
+             stats["in_range"], stats["unflagged"], uv_min, uv_max, scheduler_text)
+    g = grid.size
+    nchan = freq.size
+
+    def assemble(pick):
+        vis4 = np.zeros((4, nchan, g, g), np.complex128)
+        weight = np.zeros((nchan, g, g))
+        for k, inp in enumerate(inputs):
+            if totals[k] is None:
+                continue
+            v, w = pick(totals[k]).result()
+            o = layout.offsets[k]
+            vis4[:, o:o + inp.freq.size] = v
+            weight[o:o + inp.freq.size] = w
+        return vis4, weight
+
+    # halves first: their results grid any buffered samples once, the sum reuses them
+    halves = [assemble(lambda a: a[0]), assemble(lambda a: a[1])] if split else []
+    vis4, weight = assemble(lambda a: a[0] if not split else a[0].merge(a[1]))
+    seen = response_attrs(gridder, taper, grid.cell)
     attrs = {
         "cell_lambda": grid.cell, "uv_min_lambda": uv_min, "uv_max_lambda": uv_max,
-        "units": "Jy", "source": str(ms), "source_kind": "ms", "column": column,
-        "field_id": int(field_id), "field_name": fields[field_id].name,
-        "phase_centre_ra_deg": math.degrees(fields[field_id].ra) % 360,
-        "phase_centre_dec_deg": math.degrees(fields[field_id].dec),
-        "spw_id": int(spw_id), "ddid": int(ddid), "feed_type": feed,
+        "units": "Jy", "source": "; ".join(names), "source_kind": "ms", "column": column,
+        "field_id": int(field_id), "field_name": f0.name,
+        "phase_centre_ra_deg": math.degrees(f0.ra) % 360,
+        "phase_centre_dec_deg": math.degrees(f0.dec),
+        "spw_id": inputs[0].spw_id, "ddid": int(ddid),
+        "feed_type": ",".join(sorted({i.feed for i in inputs})),
         "gridder": gridder, "w_correction": GRIDDER_DESCRIPTIONS[gridder],
         "wgridder_epsilon": float(epsilon) if gridder == "wgrid" else 0.0,
-        "weighting": "natural", "weight_column": wcol or "none (unit weights)",
-        "fov_deg": math.degrees(fov_rad),
-        "taper": taper if gridder == "wgrid" else "none (nearest cell: sinc x sinc response)",
-        "beam_area_sr": float(beam_area_sr) if beam_area_sr else area,
-        "beam_area_source": ("given" if beam_area_sr else
-                             "int A^2 dOmega of the gridder's image-domain response"),
+        "weighting": "natural",
+        "weight_column": ",".join(sorted({i.wcol or "none (unit weights)" for i in inputs})),
+        **seen,
+        "beam_area_sr": float(beam_area_sr) if beam_area_sr else seen["beam_area_sr"],
+        "beam_area_source": "given" if beam_area_sr else seen["beam_area_source"],
         "split": split or "", "n_samples_gridded": stats["in_range"],
+        "n_inputs": len(inputs), "freq_gaps": layout.gap_text(),
+        "n_gap_channels": layout.n_gap_channels,
     }
+    if len(inputs) > 1:
+        attrs["spw_ids"] = ",".join(str(i.spw_id) for i in inputs)
     return uvcube_dataset(vis4, weight, freq, grid.centres, attrs, halves)
