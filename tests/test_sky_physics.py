@@ -32,7 +32,12 @@ def test_uniform_slab_through_generator_matches_burn(b_par):
     shape = burn(1.0, math.pi / 2, F, freq) * (freq / 150e6) ** -params.beta
     ref = burn(1.0, math.pi / 2, F, np.array([150e6]))[0]
     expected = shape * (2.0 / abs(ref))        # normalisation: |P(150 MHz)| = 2 K
-    p = cube.data[0] + 1j * cube.data[1]       # (nchan, y, x), uniform over the map
+    # Q, U are referred to the local North of each pixel: turn them back to the image +y
+    # axis, over which the slab is uniform (psi from the WCS is tested in test_sky_polframe)
+    from msleak.sky.cube import y_axis_position_angle
+
+    psi = y_axis_position_angle(cube.wcs, cube.npix)
+    p = (cube.data[0] + 1j * cube.data[1]) * np.exp(-2j * psi)   # (nchan, y, x)
     err = np.abs(p - expected[:, None, None]).max() / np.abs(expected).max()
     assert err < 1e-3
     # the depolarization is real (not a trivial constant) for the larger rotation

@@ -6,6 +6,7 @@ dependency of one command never slows another.
 
 from __future__ import annotations
 
+import errno
 import importlib
 import logging
 import sys
@@ -32,6 +33,11 @@ COMMANDS = {
 
 log = logging.getLogger("msleak")
 
+#: operating-system errors a user fixes (full disk, quota, read-only, forbidden or missing
+#: paths): exit status 2 with one line, like any input error
+_USER_OS_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
+                   errno.ENOENT, errno.ENOTDIR, errno.EISDIR}
+
 
 class LazyGroup(click.Group):
     """A click group that imports each command's module on first use."""
@@ -57,12 +63,16 @@ class LazyGroup(click.Group):
             click.echo(f"msleak: error: {_one_line(err)}", err=True)
             ctx.exit(2)
         except KeyboardInterrupt:
-            click.echo("msleak: interrupted; the Measurement Set is readable, rerun the "
-                       "same command to finish", err=True)
+            click.echo("msleak: interrupted: rerun the same command (predict and paper "
+                       "resume where they stopped; simulate needs --overwrite)", err=True)
             ctx.exit(130)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
             raise
         except Exception as err:  # noqa: BLE001 - last-resort one-line report
+            if isinstance(err, OSError) and err.errno in _USER_OS_ERRORS:
+                click.echo(f"msleak: error: {_one_line(err)} (check the path, free space or "
+                           "permissions, then rerun)", err=True)
+                ctx.exit(2)
             if ctx.obj and ctx.obj.get("debug"):
                 raise
             click.echo(f"msleak: unexpected failure: {type(err).__name__}: {_one_line(err)} "

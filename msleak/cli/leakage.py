@@ -82,9 +82,16 @@ def _range(ctx, param, value):
               help="Write the PNG figures.")
 @click.option("--pdf/--no-pdf", default=True, show_default=True,
               help="Also write each figure as PDF.")
+@click.option("--n-boot", type=click.IntRange(min=10), default=200, show_default=True,
+              help="Block-bootstrap resamples for the errors of the medians and mean.")
+@click.option("--bootstrap-block", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Bootstrap block size, in uv cells a side (whole cells with all their "
+              "delays are redrawn).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the bootstrap.")
 def leakage(ps, outdir, labels, field_name, stats_from, negative, bins, hist_quantile,
             k_par_range, k_perp_range, expected, expected_labels, expected_model,
-            leakage_rel_error, correct, figures, pdf):
+            leakage_rel_error, correct, figures, pdf, n_boot, bootstrap_block, seed):
     """Fractional leakage L_I = 100 sqrt(P_I / P_P) (percent) of one or more PS products.
 
     \b
@@ -112,7 +119,8 @@ def leakage(ps, outdir, labels, field_name, stats_from, negative, bins, hist_qua
     opts = LeakageOptions(field_name=field_name, stats_from=stats_from, negative=negative,
                           bins=bins, upper_quantile=hist_quantile, k_par_range=k_par_range,
                           k_perp_range=k_perp_range, expected_model=expected_model,
-                          rel_error=leakage_rel_error, figures=figures, pdf=pdf)
+                          rel_error=leakage_rel_error, figures=figures, pdf=pdf,
+                          n_boot=n_boot, bootstrap_block=bootstrap_block, seed=seed)
     files = run_leakage(ps, outdir, labels, expected, expected_labels, correct, opts)
     click.echo(f"msleak leakage: wrote {len(files)} files to {outdir}")
     stats = files["stats_md"].read_text().splitlines()

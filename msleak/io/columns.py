@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
@@ -32,11 +33,17 @@ __all__ = [
     "RUN_KEYWORD",
     "check_writable",
     "check_column_name",
+    "open_for_writing",
+    "check_free_space",
     "ensure_data_column",
     "write_rows",
     "read_rows",
     "read_run_state",
     "write_run_state",
+    "BACKUP_DIR",
+    "backup_headers",
+    "discard_header_backup",
+    "repair_interrupted",
 ]
 
 log = logging.getLogger(__name__)
@@ -61,6 +68,58 @@ def check_writable(ms: str | os.PathLike) -> None:
         if not os.access(path, os.W_OK) or not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
             raise InputError(f"{ms}: Measurement Set is read-only; copy it or make it "
                              "writable (chmod -R u+w) first")
+
+
+@contextlib.contextmanager
+def open_for_writing(ms: str | os.PathLike, wait_message: str = "waiting for it to finish"):
+    """Open the main table for writing and hold its write lock until the block ends.
+
+    Another process writing (or reading) the same MS at the same time would otherwise
+    interleave with this one chunk by chunk under casacore's automatic locking. Here the
+    lock is taken once (a warning is logged while another process holds it, and we wait)
+    and kept, so a second msleak process waits for the first to finish. A killed process
+    loses its lock with it (fcntl locks), so a stale lock never blocks a rerun.
+    """
+    import casacore.tables as pt
+
+    def _open(lockoptions):
+        return pt.table(str(ms), readonly=False, ack=False, lockoptions=lockoptions)
+
+    try:
+        try:
+            table = _open("permanent")
+        except RuntimeError as err:
+            if "lock" not in str(err).lower():
+                raise
+            log.warning("%s is in use by another process; %s", ms, wait_message)
+            table = _open("permanentwait")
+    except RuntimeError as err:
+        raise InputError(f"{ms}: cannot open for writing ({' '.join(str(err).split())[:160]})"
+                         ) from err
+    try:
+        yield table
+    finally:
+        table.close()
+
+
+def check_free_space(path: str | os.PathLike, nbytes: float, what: str) -> None:
+    """Raise InputError if the file system holding ``path`` has less than ``nbytes`` free.
+
+    casacore aborts the whole process (an exception thrown while closing a table) when a
+    write hits a full disk, so writers check the space they will need before starting.
+    """
+    import shutil
+
+    path = Path(path)
+    probe = path if path.exists() else path.parent
+    try:
+        free = shutil.disk_usage(probe).free
+    except OSError:  # pragma: no cover - unusual file systems: let the write decide
+        return
+    if free < nbytes:
+        raise InputError(f"not enough disk space for {what}: needs about {nbytes / 2**20:.1f} "
+                         f"MB, {free / 2**20:.1f} MB free on {probe}; free some space or "
+                         "write elsewhere")
 
 
 def check_column_name(name: str, *, overwrite_data: bool = False) -> None:
@@ -117,6 +176,8 @@ def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
             raise InputError(f"column {name} exists with another shape than {like}; "
                              "choose another --column")
         return False
+    cell_bytes = 8 * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
+    check_free_space(table.name(), table.nrows() * cell_bytes + 1.1 * 2**20, f"column {name}")
     dm = table.getdminfo(like)
     fixed = "shape" in desc and len(desc.get("shape", [])) > 0 and bool(desc.get("option", 0) & 4)
     if dm.get("TYPE") in _TILED:
@@ -201,6 +262,82 @@ def read_run_state(table, column: str) -> dict | None:
 
 
 def write_run_state(table, column: str, state: dict) -> None:
-    """Store the run record on the column and flush the table to disk."""
+    """Store the run record on the column and flush the table to disk.
+
+    While the run is incomplete, a copy of the column's storage-manager header file is
+    kept in the MS (see :func:`repair_interrupted`); it is removed when ``state`` says
+    the run is complete.
+    """
     table.putcolkeyword(column, RUN_KEYWORD, state)
     table.flush()
+    if state.get("complete"):
+        discard_header_backup(table.name())
+    else:
+        backup_headers(table, column)
+
+
+#: Directory inside the MS holding header copies while a write is in progress.
+BACKUP_DIR = ".msleak_backup"
+
+
+def backup_headers(table, column: str) -> None:
+    """Copy the (flushed) header files that casacore rewrites in place on every flush.
+
+    casacore rewrites the header file ``table.f<SEQNR>`` of a storage manager whose data
+    changed (and ``table.info``) in place at every flush, so a process killed during a
+    flush can leave it truncated, and then the whole MS no longer opens. Their content
+    does not change while rows are only overwritten, so a copy taken once is valid for
+    the whole run. Nothing is done if a copy exists already.
+    """
+    import shutil
+
+    ms = Path(table.name())
+    backup = ms / BACKUP_DIR
+    if backup.is_dir():
+        return
+    seqnr = int(table.getdminfo(column)["SEQNR"])
+    tmp = ms / f"{BACKUP_DIR}.partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    for name in (f"table.f{seqnr}", "table.info"):
+        if (ms / name).is_file():
+            shutil.copy2(ms / name, tmp / name)
+    os.replace(tmp, backup)
+
+
+def discard_header_backup(ms: str | os.PathLike) -> None:
+    """Remove the header copies of :func:`backup_headers` (the run completed)."""
+    import shutil
+
+    shutil.rmtree(Path(ms) / BACKUP_DIR, ignore_errors=True)
+
+
+def repair_interrupted(ms: str | os.PathLike) -> bool:
+    """Restore header files truncated by a killed msleak write; True if it did.
+
+    Only acts when a header backup exists (an msleak write was interrupted) *and* the
+    main table no longer opens; then the copies are put back and the table must open.
+    """
+    import shutil
+
+    import casacore.tables as pt
+
+    ms = Path(ms)
+    backup = ms / BACKUP_DIR
+    if not backup.is_dir():
+        return False
+    try:
+        pt.table(str(ms), ack=False).close()
+        return False
+    except RuntimeError as err:
+        reason = " ".join(str(err).split())[:160]
+    for path in sorted(backup.iterdir()):
+        shutil.copy2(path, ms / path.name)
+    try:
+        pt.table(str(ms), ack=False).close()
+    except RuntimeError as err:
+        raise InputError(f"{ms}: the main table does not open ({reason}) and restoring the "
+                         f"header copies in {BACKUP_DIR} did not help "
+                         f"({' '.join(str(err).split())[:120]})") from err
+    log.warning("%s: restored header files truncated by an interrupted run (%s)", ms, reason)
+    return True

@@ -8,14 +8,18 @@ Written layout (primary HDU, float32 by default)::
     NAXIS4 = nstokes STOKES Q, U = 2, 3 (FITS codes)
     BUNIT  = 'K' or 'JY/PIXEL'
 
-plus the generator's parameters as ``HIERARCH MSLEAK ...`` cards and a HISTORY card with
-the command line. Reading accepts any axis order, any celestial projection, CUNIT3 in any
+plus the generator's parameters as ``HIERARCH MSLEAK ...`` cards (``MSLEAK POLFRAME =
+'LOCAL-NORTH'``: Q and U are referred to the local celestial North of each pixel, the
+FITS convention) and a HISTORY card with the command line. Cubes of an older msleak
+generator (``MSLEAK GENERATR`` without ``MSLEAK POLFRAME``) held Q and U referred to the
+image +y axis; :func:`read_cube` turns them to the local North, with a warning. Reading accepts any axis order, any celestial projection, CUNIT3 in any
 frequency unit, degenerate extra axes, and a missing STOKES axis (then the cube is taken
 to be the Stokes parameter given by ``stokes``, default I).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -23,11 +27,14 @@ import numpy as np
 
 from msleak import __version__
 from msleak.errors import InputError
-from msleak.sky.cube import STOKES_CODES, SkyCube
+from msleak.sky.cube import (POLFRAME, STOKES_CODES, SkyCube, rotate_polarization,
+                             y_axis_position_angle)
 
-__all__ = ["write_cube", "read_cube"]
+__all__ = ["write_cube", "read_cube", "check_complete"]
 
 _CODE_TO_STOKES = {v: k for k, v in STOKES_CODES.items()}
+
+log = logging.getLogger(__name__)
 
 
 def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = False,
@@ -108,6 +115,27 @@ def _units(bunit: str | None) -> tuple[str, float]:
     raise InputError(f"unsupported BUNIT {bunit!r}; use K or JY/PIXEL")
 
 
+def check_complete(path: str | os.PathLike, hdu) -> None:
+    """Raise InputError if the data of ``hdu`` run past the end of the file.
+
+    astropy pads a FITS file that was cut short (interrupted copy or download) with
+    zeros and only warns; a sky or image cube with silently zeroed pixels must not be
+    used.
+    """
+    info = hdu.fileinfo() if hasattr(hdu, "fileinfo") else None
+    header = hdu.header
+    if not info or "datLoc" not in info:
+        return
+    naxis = int(header.get("NAXIS", 0))
+    shape = [int(header.get(f"NAXIS{i}", 0)) for i in range(1, naxis + 1)]
+    nbytes = abs(int(header.get("BITPIX", 8))) // 8 * (int(np.prod(shape)) if shape else 0)
+    need = int(info["datLoc"]) + nbytes
+    size = os.path.getsize(path)
+    if size < need:
+        raise InputError(f"{path} is truncated: {size} bytes, its header announces {need} "
+                         "(an interrupted copy or write?); get a complete copy")
+
+
 def read_cube(path: str | os.PathLike, *, stokes: str = "I") -> SkyCube:
     """Read a FITS cube with two celestial axes, a FREQ axis and optionally STOKES.
 
@@ -134,6 +162,8 @@ def read_cube(path: str | os.PathLike, *, stokes: str = "I") -> SkyCube:
     except (OSError, ValueError) as err:
         raise InputError(f"{path} is not a readable FITS file ({err})") from None
     with hdul:
+        for h in hdul:
+            check_complete(path, h)
         hdu = next((h for h in hdul if getattr(h, "data", None) is not None
                     and getattr(h, "is_image", False) and h.data.ndim >= 3), None)
         if hdu is None:
@@ -142,7 +172,11 @@ def read_cube(path: str | os.PathLike, *, stokes: str = "I") -> SkyCube:
         data = np.asarray(hdu.data, dtype=float)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FITSFixedWarning)
-        wcs = WCS(header)
+        try:
+            wcs = WCS(header)
+        except Exception as err:  # noqa: BLE001 - astropy/wcslib raise many types
+            raise InputError(f"{path}: invalid WCS in the FITS header "
+                             f"({' '.join(str(err).split())[:160]})") from None
     naxis = wcs.naxis
     if not wcs.has_celestial:
         raise InputError(f"{path} has no celestial (RA/Dec) axes")
@@ -205,5 +239,13 @@ def read_cube(path: str | os.PathLike, *, stokes: str = "I") -> SkyCube:
     cel.wcs.set()
     meta = {k[len("MSLEAK "):]: header[k] for k in header
             if isinstance(k, str) and k.startswith("MSLEAK ")}
-    return SkyCube(data=np.ascontiguousarray(data), freq=freq, stokes=labels, wcs=cel,
+    cube = SkyCube(data=np.ascontiguousarray(data), freq=freq, stokes=labels, wcs=cel,
                    units=units, meta=meta)
+    if ("GENERATR" in meta and str(meta["GENERATR"]).startswith("msleak.sky.foreground")
+            and "POLFRAME" not in meta and {"Q", "U"} & set(labels)):
+        log.warning("%s was made by an older msleak with Q, U referred to the image +y "
+                    "axis; turning them to the local North of each pixel (FITS convention)",
+                    path)
+        cube = rotate_polarization(cube, y_axis_position_angle(cel, cube.npix))
+        cube.meta["POLFRAME"] = POLFRAME
+    return cube

@@ -16,6 +16,7 @@ The layouts of each kind are documented in docs/products.md.
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import os
 import sys
 from pathlib import Path
@@ -31,6 +32,11 @@ __all__ = ["FORMAT_VERSION", "save_product", "open_product", "command_line"]
 #: Layout version of every product kind written by this msleak.
 FORMAT_VERSION = 1
 
+#: errno values of a write the user can fix: no space, quota, file too large, read-only
+#: file system, permission denied.
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES,
+                 errno.EPERM}
+
 
 def command_line() -> str:
     """The command line of this process, for provenance."""
@@ -41,8 +47,9 @@ def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
                  overwrite: bool = True) -> Path:
     """Write ``ds`` as an msleak product of the given kind; returns the path.
 
-    The file is written to a temporary name and renamed, so an interrupted write never
-    leaves a truncated product under the final name.
+    The file is written to a temporary name and renamed, so an interrupted or failed
+    write (full disk: a one-line :class:`InputError`) never leaves a truncated product
+    under the final name.
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -63,9 +70,18 @@ def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
         elif value is None:
             ds.attrs[name] = ""
     tmp = path.with_name(f".{path.name}.partial")
+    # Serialised in memory, then written with plain file I/O: HDF5 crashes the process
+    # when it closes a file whose write failed (full disk, quota), Python does not.
+    data = ds.to_netcdf(engine="h5netcdf", invalid_netcdf=True)
     try:
-        ds.to_netcdf(tmp, engine="h5netcdf", invalid_netcdf=True)
+        with open(tmp, "wb") as fh:
+            fh.write(data)
         os.replace(tmp, path)
+    except OSError as err:
+        if err.errno not in _WRITE_ERRNOS:
+            raise
+        raise InputError(f"{path}: cannot write the {kind} product "
+                         f"({os.strerror(err.errno)}); nothing was written") from err
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -236,9 +236,12 @@ def _read_line(line, lineno, path, fmt, rows):
         if v == "":
             return default
         try:
-            return float(v)
+            x = float(v)
         except ValueError:
             raise InputError(f"{where(field)} {v!r} is not a number") from None
+        if not math.isfinite(x):
+            raise InputError(f"{where(field)} {v!r} is not a finite number")
+        return x
 
     name = rec.get("Name", "")
     if not name:

@@ -15,19 +15,27 @@ import xarray as xr
 
 from msleak.errors import InputError
 from msleak.leakage import expected as ex
-from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_map,
-                                     leakage_voxels, stokes_power)
+from msleak.leakage.bootstrap import cell_groups
+from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_fraction,
+                                     leakage_map, leakage_voxels, stokes_power)
 from msleak.leakage.stats import field_estimate, leakage_statistics
 
-__all__ = ["analyse", "predict", "correct", "ModelMode", "STAT_COLUMNS"]
+__all__ = ["analyse", "predict", "correct", "voxel_groups", "correlation", "ModelMode", "STAT_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
 ModelMode = Literal["auto", "map", "median", "field"]
 
-#: per-input statistics, in the order of stats.csv (percent unless n_*)
+#: per-input statistics, in the order of stats.csv (percent unless n_* or ks_*)
 STAT_COLUMNS = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
-                "pareto_median_hist", "peak_bin_width", "n_voxels", "n_masked")
+                "pareto_median_hist", "peak_bin_width", "n_voxels", "n_masked",
+                "median_err", "mean_err", "pareto_median_err_iid", "ks_d", "ks_p",
+                "ks_p_eff", "n_eff", "n_groups")
+
+#: statistics in percent (units attribute)
+_PERCENT = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
+            "pareto_median_hist", "peak_bin_width", "median_err", "mean_err",
+            "pareto_median_err_iid")
 
 _MASK_DOC = ", ".join(f"{c}={n}" for n, c in MASK_CODES.items())
 
@@ -37,7 +45,8 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
             negative: NegativePolicy = "mask", bins: int = 100, upper_quantile: float = 0.99,
             k_par_range: tuple[float, float] | None = None,
             k_perp_range: tuple[float, float] | None = None,
-            field_name: str = "") -> xr.Dataset:
+            field_name: str = "", n_boot: int = 200, bootstrap_block: int = 2,
+            seed: int = 0) -> xr.Dataset:
     """L_I maps, voxel statistics and Pareto fits of several PS products.
 
     Parameters
@@ -54,6 +63,10 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         Histogram binning of L_I for the peak: ``bins`` uniform bins on [0, quantile].
     k_par_range, k_perp_range : (float, float), optional
         Restrict the statistics (not the maps) to |k_par| and k_perp in these ranges, Mpc^-1.
+    n_boot, bootstrap_block, seed : int
+        Block bootstrap of the errors: ``n_boot`` resamples (0: none) of uv cells with all
+        their delays, in blocks of ``bootstrap_block`` x ``bootstrap_block`` neighbouring
+        cells (with ``stats_from="bins"``: of k_perp columns), seeded by ``seed``.
 
     Returns
     -------
@@ -78,12 +91,26 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         if vox.L.size < 2:
             raise InputError(f"{name}: only {vox.L.size} valid {vox.source} (of "
                              f"{vox.n_selected}); P_P is zero or negative almost everywhere")
-        st = leakage_statistics(vox.L, bins, upper_quantile)
+        groups = voxel_groups(ds, stats_from, negative, k_par_range, k_perp_range,
+                              bootstrap_block, name)
+        if groups.size != vox.L.size:  # pragma: no cover - guards the selection logic
+            raise RuntimeError(f"{name}: {groups.size} group labels for {vox.L.size} voxels")
+        n_grp = np.unique(groups).size
+        if n_boot > 0 and n_grp < 20:
+            log.warning("%s: only %d independent groups of voxels for the bootstrap; its "
+                        "errors are uncertain (use a smaller bootstrap block?)", name, n_grp)
+        st = leakage_statistics(vox.L, bins, upper_quantile, groups=groups, n_boot=n_boot,
+                                seed=seed)
+        boot = st.boot
         rows.append({
             "mean": st.mean, "median": st.median, "std": st.std, "peak": st.peak,
-            "pareto_median": st.pareto_median, "pareto_median_err": st.fit.median_err_percent,
+            "pareto_median": st.pareto_median, "pareto_median_err": st.pareto_median_err,
             "pareto_median_hist": st.fit_hist.median_percent if st.fit_hist else 0.0,
             "peak_bin_width": st.peak_bin_width, "n_voxels": st.n, "n_masked": vox.n_masked,
+            "median_err": st.median_err, "mean_err": st.mean_err,
+            "pareto_median_err_iid": st.fit.median_err_percent,
+            "ks_d": st.ks_d, "ks_p": st.ks_p, "ks_p_eff": st.ks_p_eff,
+            "n_eff": st.n_eff, "n_groups": boot.n_groups if boot else 0,
             "pareto_loc": st.fit.loc, "pareto_scale": st.fit.scale,
             "fit_method": st.fit.method,
             "wedge_slope_horizon": float(ds.attrs.get("wedge_slope_horizon", 0.0) or 0.0),
@@ -92,9 +119,10 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         hists.append(st.hist_counts)
         edges.append(st.hist_edges)
         masked.append([vox.masked.get(n, 0) for n in MASK_CODES if n != "valid"])
-        log.info("%s (%s): median L_I %.4g %% (data), %.4g +- %.2g %% (Pareto fit), %d %s",
-                 name, label, st.median, st.pareto_median, st.fit.median_err_percent, st.n,
-                 vox.source)
+        log.info("%s (%s): median L_I %.4g +- %.2g %% (data), %.4g +- %.2g %% (Pareto fit; "
+                 "iid %.2g), %d %s worth %.0f independent, KS D %.3g", name, label,
+                 st.median, st.median_err, st.pareto_median, st.pareto_median_err,
+                 st.fit.median_err_percent, st.n, vox.source, st.n_eff, st.ks_d)
 
     fill = {"L_I": 0.0, "mask": MASK_CODES["not_in_grid"], "power_I": 0.0, "power_P": 0.0}
     grid = xr.concat(maps, dim="input", join="outer", fill_value=fill)
@@ -111,11 +139,18 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
     for col in rows[0]:
         values = [r[col] for r in rows]
         out[col] = ("input", np.asarray(values))
-    units = {c: "percent" for c in ("mean", "median", "std", "peak", "pareto_median",
-                                    "pareto_median_err", "pareto_median_hist",
-                                    "peak_bin_width")}
-    for c, u in units.items():
-        out[c].attrs["units"] = u
+    for c in _PERCENT:
+        out[c].attrs["units"] = "percent"
+    out["pareto_median_err"].attrs["long_name"] = (
+        "block-bootstrap standard error of pareto_median" if n_boot > 0 else
+        "asymptotic standard error of pareto_median (independent voxels)")
+    out["pareto_median_err_iid"].attrs["long_name"] = (
+        "asymptotic standard error of pareto_median for independent voxels, "
+        "(A/2) sqrt(3/n)")
+    out["n_eff"].attrs["long_name"] = ("effective number of independent voxels, "
+                                       "n (pareto_median_err_iid / pareto_median_err)^2")
+    out["ks_p"].attrs["long_name"] = "KS p-value of ks_d for n_voxels independent voxels"
+    out["ks_p_eff"].attrs["long_name"] = "KS p-value of ks_d for n_eff voxels"
     out["k_par"].attrs["units"] = "Mpc^-1"
     out["k_perp"].attrs["units"] = "Mpc^-1"
     nb = max(len(h) for h in hists)
@@ -139,6 +174,13 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         "hist_binning": f"{bins} uniform bins of L_I from 0 to its {upper_quantile:g} quantile",
         "fit": "Pareto b=1 (scipy.stats.pareto) on W=(L_I/100)^2, loc and scale by maximum "
                "likelihood; pareto_median = 100 sqrt(loc + 2 scale)",
+        "errors": (f"block bootstrap, {n_boot} resamples of "
+                   + (f"{bootstrap_block}x{bootstrap_block} blocks of uv cells with all "
+                      "their delays" if stats_from == "voxels" else "k_perp columns")
+                   + f", seed {seed}" if n_boot > 0 else
+                   "asymptotic, independent voxels (no bootstrap)"),
+        "n_boot": int(n_boot), "bootstrap_block": int(bootstrap_block),
+        "bootstrap_seed": int(seed),
         "k_par_range": list(k_par_range) if k_par_range else [],
         "k_perp_range": list(k_perp_range) if k_perp_range else [],
         "mask_codes": _MASK_DOC,
@@ -146,6 +188,63 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
                                                     datasets[0].attrs.get("units", ""))),
     })
     return out
+
+
+def voxel_groups(ds: xr.Dataset, source: str = "voxels", negative: NegativePolicy = "mask",
+                 k_par_range: tuple[float, float] | None = None,
+                 k_perp_range: tuple[float, float] | None = None, block: int = 1,
+                 name: str = "PS product") -> np.ndarray:
+    """Bootstrap group of every voxel that :func:`leakage_voxels` returns, same order.
+
+    ``voxels``: the uv cell of the voxel (all its delays together) or, with ``block`` > 1,
+    its block of ``block`` x ``block`` neighbouring cells (from ``u_cell``, ``v_cell`` and
+    the ``cell_lambda`` attribute, or the smallest spacing of the cell coordinates).
+    ``bins``: the k_perp column of the 2D bin.
+    """
+    if source == "voxels":
+        p_i = stokes_power(ds, "power3d", "I", name).transpose("delay3d", "cell").values
+        p_p = stokes_power(ds, "power3d", "P", name).transpose("delay3d", "cell").values
+        _, mask = leakage_fraction(p_i, p_p, None, negative)
+        kpar = np.abs(np.asarray(ds["k_par3d"].values, float))[:, None]
+        kperp = np.asarray(ds["k_perp_cell"].values, float)[None, :]
+        ncell = p_i.shape[1]
+        label = np.arange(ncell)
+        if block > 1:
+            if "u_cell" not in ds.variables or "v_cell" not in ds.variables:
+                raise InputError(f"{name}: bootstrap blocks of uv cells need u_cell, v_cell")
+            u, v = ds["u_cell"].values, ds["v_cell"].values
+            cell = float(ds.attrs.get("cell_lambda", 0) or 0) or _spacing(u, v)
+            if _on_grid(u, v, cell):
+                label = cell_groups(u, v, cell, block)
+            else:
+                log.warning("%s: the uv cells are not on a grid of %g wavelengths; the "
+                            "bootstrap resamples single cells", name, cell)
+        label = np.broadcast_to(label[None, :], mask.shape)
+    else:
+        m = leakage_map(ds, negative, name)
+        mask = m["mask"].values
+        kpar = m["k_par"].values[:, None]
+        kperp = m["k_perp"].values[None, :]
+        label = np.broadcast_to(np.arange(mask.shape[1])[None, :], mask.shape)
+    sel = np.ones(mask.shape, dtype=bool)
+    for x, rng in ((kpar, k_par_range), (kperp, k_perp_range)):
+        if rng is not None:
+            sel = sel & ((x >= rng[0]) & (x <= rng[1]))
+    return label[sel & (mask == 0)]
+
+
+def _on_grid(u: np.ndarray, v: np.ndarray, cell: float) -> bool:
+    """True if the cell coordinates are whole multiples of ``cell`` (to 1e-3 cell)."""
+    return bool(all(np.allclose(c / cell, np.rint(c / cell), rtol=0, atol=1e-3)
+                    for c in (np.asarray(u, float), np.asarray(v, float))))
+
+
+def _spacing(u: np.ndarray, v: np.ndarray) -> float:
+    """Smallest positive spacing of the distinct cell coordinates (the cell size)."""
+    steps = [np.diff(np.unique(np.round(np.asarray(c, float), 9))) for c in (u, v)]
+    steps = np.concatenate(steps)
+    steps = steps[steps > 0]
+    return float(steps.min()) if steps.size else 1.0
 
 
 def _pair(i_obs: int, n_obs: int, n_in: int) -> int | None:
@@ -224,14 +323,18 @@ def predict(result: xr.Dataset, obs: xr.Dataset, i_obs: int, n_obs: int,
                          int(filled.sum()), L_scalar)
     rel = default_rel if rel_error is None else float(rel_error)
     L_err = rel * L_model
+    corr = correlation(obs, "P", name)
+    counts_eff = counts / np.where(k_par[:, None] > 0, corr["c_2d"], corr["c_2d_zero"])
     leak = ex.expected_leakage_power(p_p_val, L_model)
-    leak_err = ex.expected_leakage_error(p_p_val, counts, L_model, L_err)
+    leak_err = ex.expected_leakage_error(p_p_val, counts_eff, L_model, L_err)
     units = str(obs["power"].attrs.get("units", obs.attrs.get("units", "")))
     dims = ("k_par", "k_perp")
     out = xr.Dataset(
         {
             "power_P_obs": (dims, p_p_val, {"units": units}),
             "counts": (dims, counts),
+            "counts_eff": (dims, counts_eff, {"long_name": "effective number of independent "
+                                              "cells, counts / corr_factor_2d"}),
             "L_I_model": (dims, L_model, {"units": "percent"}),
             "L_I_model_err": (dims, L_err, {"units": "percent"}),
             "L_I_model_filled": (dims, filled),
@@ -264,20 +367,83 @@ def predict(result: xr.Dataset, obs: xr.Dataset, i_obs: int, n_obs: int,
     out = out.assign_coords(k=("k", k, {"units": "Mpc^-1"}))
     out["power_P_obs_sph"] = ("k", pp_sph, {"units": units})
     out["counts_sph"] = ("k", c_sph)
+    out["counts_sph_eff"] = ("k", c_sph / corr["c_sph"])
     out["power_leak_sph"] = ("k", leak_sph, {"units": units})
-    out["power_leak_sph_err"] = ("k", ex.expected_leakage_error(pp_sph, c_sph, Lsph,
-                                                                rel * Lsph), {"units": units})
+    out["power_leak_sph_err"] = ("k", ex.expected_leakage_error(
+        pp_sph, c_sph / corr["c_sph"], Lsph, rel * Lsph), {"units": units})
     out.attrs.update({
         "source": name, "model_mode": mode, "model_input": model_label,
         "L_I_model_scalar": L_scalar, "L_I_model_rel_error": rel,
         "spherical_from": sph_source, "units": units,
         "formula": "P_leak = (L_I_model/100)^2 P_P,obs; sigma_leak^2 = (l^2 |P_P|/sqrt(N))^2 "
-                   "+ (2 l sigma_l P_P)^2, l = L_I_model/100",
+                   "+ (2 l sigma_l P_P)^2, l = L_I_model/100, N = counts / corr_factor",
+        "corr_factor_2d": corr["c_2d"], "corr_factor_2d_kpar0": corr["c_2d_zero"],
+        "corr_factor_sph": corr["c_sph"], "corr_method": corr["method"],
     })
     for key in ("wedge_slope_horizon", "wedge_slope_primary", "cosmology", "redshift"):
         if key in obs.attrs:
             out.attrs[key] = obs.attrs[key]
     return out
+
+
+def correlation(ds: xr.Dataset, stokes: str, name: str = "PS product") -> dict:
+    """Voxels per independent sample of a PS product's Stokes ``stokes`` power.
+
+    From the unaveraged power (``power3d`` with ``k_par3d``, ``k_perp_cell``, ``u_cell``,
+    ``v_cell``) by :func:`msleak.leakage.expected.correlation_factors` (``method`` =
+    ``measured``); without it, by counting uv cells rather than voxels: the +tau and
+    -tau voxels of a cell count once in a 2D bin (c = 2 for k_par > 0), and in a spherical
+    shell also the window's delay correlation length (``method`` = ``uv-cells``).
+
+    Returns
+    -------
+    dict
+        ``c_2d`` (k_par > 0 bins), ``c_2d_zero`` (the k_par = 0 row), ``c_sph``,
+        ``method``.
+    """
+    need = ("power3d", "k_par3d", "k_perp_cell", "u_cell", "v_cell", "k_perp_lo", "k_perp_hi")
+    if all(v in ds.variables for v in need) and "delay3d" in ds.dims:
+        try:
+            p3 = stokes_power(ds, "power3d", stokes, name).transpose("delay3d", "cell").values
+        except InputError:
+            p3 = None
+        if p3 is not None:
+            k3 = np.abs(np.asarray(ds["k_par3d"].values, float))
+            k_par = np.asarray(ds["k_par"].values, float)
+            ipar = np.argmin(np.abs(k3[:, None] - k_par[None, :]), axis=1)
+            edges = np.concatenate([ds["k_perp_lo"].values[:1], ds["k_perp_hi"].values])
+            iperp = np.clip(np.digitize(ds["k_perp_cell"].values, edges) - 1, 0,
+                            edges.size - 2)
+            bins = ipar[:, None] * (edges.size + 1) + iperp[None, :]
+            order = np.argsort(np.asarray(ds["delay3d"].values, float))
+            dk = np.empty(order.size, dtype=np.int64)
+            dk[order] = np.arange(order.size) - int(np.argmin(np.abs(
+                np.asarray(ds["delay3d"].values, float)[order])))
+            u, v = ds["u_cell"].values, ds["v_cell"].values
+            cell = float(ds.attrs.get("cell_lambda", 0) or 0) or _spacing(u, v)
+            iu, iv = np.rint(u / cell), np.rint(v / cell)
+            if not _on_grid(u, v, cell):
+                log.warning("%s: the uv cells are not on a grid of %g wavelengths; their "
+                            "uv correlation is not measured", name, cell)
+                iu = iv = None
+            r = ex.correlation_factors(p3, bins, dk, iu, iv)
+            c0 = max(1.0, r["c_2d"] - r["rho_mirror"])
+            log.info("%s: Stokes %s voxels per independent sample %.2g (2D bins), %.2g "
+                     "(spherical)", name, stokes, r["c_2d"], r["c_sph"])
+            return {"c_2d": r["c_2d"], "c_2d_zero": c0, "c_sph": r["c_sph"],
+                    "method": "measured"}
+    window = 1.0
+    if "window" in ds.attrs and "nchan" in ds.attrs:
+        try:
+            from msleak.ps.delay import spectral_window
+
+            window = ex.window_correlation_length(
+                spectral_window(str(ds.attrs["window"]), int(ds.attrs["nchan"])))
+        except (InputError, ValueError):
+            window = 1.0
+    log.warning("%s: no unaveraged power (power3d with cell coordinates): sample-variance "
+                "errors count uv cells, not voxels", name)
+    return {"c_2d": 2.0, "c_2d_zero": 1.0, "c_sph": 2.0 * window, "method": "uv-cells"}
 
 
 def _ratio(a: float, b: float) -> float:
@@ -333,7 +499,10 @@ def correct(obs_i: xr.Dataset, expected: xr.Dataset, name: str = "observed PS"
         counts = np.minimum(counts, obs_i["counts"].transpose("k_par", "k_perp").values)
     counts = np.where(np.isfinite(p_i.values), counts, 0.0)
     p_i_val = np.where(counts > 0, np.real(p_i.values), 0.0)
-    corr, err = ex.bias_correct(p_i_val, counts, expected["power_leak"].values,
+    cf = correlation(obs_i, "I", name)
+    k_par = expected["k_par"].values
+    counts_eff = counts / np.where(k_par[:, None] > 0, cf["c_2d"], cf["c_2d_zero"])
+    corr, err = ex.bias_correct(p_i_val, counts_eff, expected["power_leak"].values,
                                 expected["power_leak_err"].values)
     out = expected.copy()
     units = expected.attrs.get("units", "")
@@ -352,12 +521,16 @@ def correct(obs_i: xr.Dataset, expected: xr.Dataset, name: str = "observed PS"
     else:
         pi_sph, c_sph = ex.spherical_from_bins(p_i_val, counts, expected["k_par"].values,
                                                expected["k_perp"].values, k_edges)
-    corr_sph, err_sph = ex.bias_correct(pi_sph, c_sph, expected["power_leak_sph"].values,
+    corr_sph, err_sph = ex.bias_correct(pi_sph, c_sph / cf["c_sph"],
+                                        expected["power_leak_sph"].values,
                                         expected["power_leak_sph_err"].values)
     out["power_I_obs_sph"] = ("k", pi_sph, {"units": units})
     out["power_I_corrected_sph"] = ("k", corr_sph, {"units": units})
     out["power_I_corrected_sph_err"] = ("k", err_sph, {"units": units})
     out.attrs["source_I"] = name
     out.attrs["correction_formula"] = (
-        "P_I,corr = P_I,obs - P_leak; sigma^2 = (|P_I,obs|/sqrt(N))^2 + sigma_leak^2")
+        "P_I,corr = P_I,obs - P_leak; sigma^2 = (|P_I,obs|/sqrt(N))^2 + sigma_leak^2, "
+        "N = counts / corr_factor (of Stokes I)")
+    out.attrs.update({"corr_factor_I_2d": cf["c_2d"], "corr_factor_I_sph": cf["c_sph"],
+                      "corr_method_I": cf["method"]})
     return out

@@ -10,7 +10,7 @@ Bias correction (beyond the paper). Like a noise-bias subtraction,
 
     P_I,corr = P_I,obs - P_leak,
 
-with the uncertainty of each bin (N = number of 3D cells averaged into the bin)
+with the uncertainty of each bin (N = effective number of independent cells in the bin)
 
     sigma_PP    = |P_P,obs| / sqrt(N),        sigma_PI = |P_I,obs| / sqrt(N)
     sigma_leak^2 = (l^2 sigma_PP)^2 + (2 l sigma_l P_P,obs)^2
@@ -21,6 +21,13 @@ The first two are the Gaussian sample variance of an average of N independent ce
 is the uncertainty of the leakage model (see :func:`leakage_model_error`). The I and P
 errors are treated as independent. Bins with N = 0 get zero power and zero error and are
 flagged by the caller.
+
+The voxels averaged into a bin are not independent (the gridding correlates neighbouring
+uv cells, the spectral window neighbouring delays, and a bright uv cell is bright at
+every delay), so N is the number of voxels (``counts``) divided by the number of voxels
+per independent sample c >= 1. :func:`correlation_factors` measures c from the
+correlation of the voxel powers with their neighbours; :func:`window_correlation_length`
+gives the window's part alone, used when the product has no unaveraged power.
 """
 
 from __future__ import annotations
@@ -38,6 +45,8 @@ __all__ = [
     "same_grid",
     "edges_from_centres",
     "spherical_from_bins",
+    "window_correlation_length",
+    "correlation_factors",
 ]
 
 
@@ -168,3 +177,113 @@ def spherical_from_bins(power2d: np.ndarray, counts: np.ndarray, k_par: np.ndarr
     out = np.zeros(nk)
     np.divide(psum, wsum, out=out, where=wsum > 0)
     return out, wsum
+
+
+def window_correlation_length(window: np.ndarray) -> float:
+    """Delay bins per independent delay for white noise through a spectral window.
+
+    N sum w^4 / (sum w^2)^2 = sum over delay lags of the power correlation
+    |sum w^2 e^(2 pi i lag n / N)|^2 / (sum w^2)^2: 1 for no window, 1.98 for Hann, 2.82
+    for the 4-term Blackman-Harris (50 channels).
+    """
+    w = np.asarray(window, dtype=np.float64)
+    return float(w.size * np.sum(w**4) / np.sum(w**2) ** 2)
+
+
+def correlation_factors(p3d: np.ndarray, bin_id: np.ndarray, delay_index: np.ndarray,
+                        iu: np.ndarray | None = None, iv: np.ndarray | None = None,
+                        max_uv_lag: int = 3, max_delay_lag: int = 5, min_bin: int = 4
+                        ) -> dict:
+    """Voxels per independent sample in a 2D bin and in a spherical shell, from the data.
+
+    The power of every voxel is standardised within its 2D bin, z = (P - mean) / std
+    (bins with fewer than ``min_bin`` voxels are left out), and the correlation rho of z
+    is measured between every voxel and its partners: the uv cells within
+    ``max_uv_lag`` cells (same delay), the same cell at delays up to ``max_delay_lag``
+    bins away, and the same cell at the opposite delay (-tau). The variance of an
+    average of N voxels is then (sigma^2 / N) c with
+
+        c_2d  = 1 + sum_uv rho + rho(-tau)                        (voxels of a 2D bin:
+                                                                  uv cells at +-tau)
+        c_sph = 1 + sum_uv rho + sum_delay rho + rho(-tau, far)   (spherical shells)
+
+    so N / c is the effective number of independent cells. Partners outside the bin are
+    counted as if inside (c is slightly overestimated, i.e. conservative); c < 1 (noise
+    in the rho estimates) is raised to 1.
+
+    Parameters
+    ----------
+    p3d : ndarray (ndelay, ncell)
+        Power of every voxel (real).
+    bin_id : ndarray (ndelay, ncell) int
+        2D bin of every voxel (any labels; negative: not used).
+    delay_index : ndarray (ndelay,) int
+        Signed integer delay of every row (k of tau_k = k / (N dnu)).
+    iu, iv : ndarray (ncell,) int, optional
+        uv grid position of every cell, in cells; without them no uv lags are used.
+
+    Returns
+    -------
+    dict
+        ``c_2d``, ``c_sph`` (floats >= 1), ``rho_uv`` (sum over uv lags), ``rho_delay``
+        (sum over delay lags), ``rho_mirror``.
+    """
+    p = np.real(np.asarray(p3d, dtype=np.complex128 if np.iscomplexobj(p3d) else float))
+    b = np.asarray(bin_id)
+    ok = (b >= 0) & np.isfinite(p)
+    _, lab = np.unique(np.where(ok, b, -1), return_inverse=True)
+    lab = lab.reshape(p.shape)
+    nb = int(lab.max()) + 1
+    w = ok.astype(float)
+    cnt = np.bincount(lab.ravel(), weights=w.ravel(), minlength=nb)
+    pz = np.where(ok, p, 0.0)
+    mean = np.bincount(lab.ravel(), weights=pz.ravel(), minlength=nb) / np.maximum(cnt, 1)
+    var = np.bincount(lab.ravel(), weights=(w * (pz - mean[lab]) ** 2).ravel(),
+                      minlength=nb) / np.maximum(cnt - 1, 1)
+    good = (cnt >= min_bin) & (var > 0)
+    z = np.full(p.shape, np.nan)
+    use = ok & good[lab]
+    z[use] = (p[use] - mean[lab][use]) / np.sqrt(var[lab][use])
+
+    # standardising within a bin makes two independent voxels of the same bin correlate
+    # by -1/(n - 1); that bias is added back pair by pair
+    bias = 1.0 / np.maximum(cnt - 1, 1)
+
+    def rho(sel_a, sel_b) -> float:
+        prod = z[sel_a] * z[sel_b] + np.where(lab[sel_a] == lab[sel_b], bias[lab[sel_a]], 0)
+        prod = prod[np.isfinite(prod)]
+        return float(prod.mean()) if prod.size >= 10 else 0.0
+
+    rows = {int(k): r for r, k in enumerate(np.asarray(delay_index).ravel())}
+    rho_uv = 0.0
+    if iu is not None and iv is not None and p.shape[1] > 1:
+        iu = np.asarray(iu, np.int64) - int(np.min(iu))
+        iv = np.asarray(iv, np.int64) - int(np.min(iv))
+        span = int(iv.max()) + 2 * max_uv_lag + 1
+        key = iu * span + iv
+        order = np.argsort(key)
+        skey = key[order]
+        for du in range(0, max_uv_lag + 1):
+            for dv in range(-max_uv_lag, max_uv_lag + 1):
+                if (du == 0 and dv <= 0) or du * du + dv * dv > max_uv_lag**2:
+                    continue               # half of the lags; the other half mirrors them
+                want = key + du * span + dv
+                pos = np.clip(np.searchsorted(skey, want), 0, skey.size - 1)
+                has = skey[pos] == want
+                if has.any():
+                    rho_uv += 2.0 * rho((slice(None), has), (slice(None), order[pos[has]]))
+    rho_delay = 0.0
+    for lag in range(1, max_delay_lag + 1):
+        pairs = [(r, rows[k + lag]) for k, r in rows.items() if k + lag in rows]
+        if pairs:
+            ra, rb = np.array(pairs).T
+            rho_delay += 2.0 * rho(ra, rb)
+    mirror = np.array([(r, rows[-k], k) for k, r in rows.items() if k > 0 and -k in rows],
+                      dtype=np.int64).reshape(-1, 3)
+    far = mirror[2 * mirror[:, 2] > max_delay_lag]
+    rho_mirror = rho(mirror[:, 0], mirror[:, 1]) if len(mirror) else 0.0
+    rho_far = rho(far[:, 0], far[:, 1]) if len(far) else 0.0
+    c_2d = max(1.0, 1.0 + rho_uv + rho_mirror)
+    c_sph = max(1.0, 1.0 + rho_uv + rho_delay + rho_far)
+    return {"c_2d": c_2d, "c_sph": c_sph, "rho_uv": rho_uv, "rho_delay": rho_delay,
+            "rho_mirror": rho_mirror}

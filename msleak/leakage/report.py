@@ -41,6 +41,9 @@ class LeakageOptions:
     rel_error: float | None = None
     figures: bool = True
     pdf: bool = True
+    n_boot: int = 200
+    bootstrap_block: int = 2
+    seed: int = 0
     extra: dict = field(default_factory=dict)
 
 
@@ -67,7 +70,7 @@ def write_stats_csv(result: xr.Dataset, path: str | os.PathLike) -> Path:
             row = [str(result["path"].values[i]), str(result["label"].values[i])]
             for c in STAT_COLUMNS:
                 v = result[c].values[i]
-                row.append(int(v) if c.startswith("n_") else f"{float(v):.6g}")
+                row.append(int(round(float(v))) if c.startswith("n_") else f"{float(v):.6g}")
             w.writerow(row)
     return path
 
@@ -78,15 +81,18 @@ def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
     title = f"L_I statistics{(' of ' + a['field_name']) if a.get('field_name') else ''}"
     lines = [f"# {title}", "",
              "| input | mean (%) | median (%) | std (%) | peak (%) | Pareto median (%) "
-             "| voxels | masked |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "| KS D (p) | voxels (independent) | masked |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for i in range(result.sizes["input"]):
         def g(c, fmt=".4g"):
-            return format(float(result[c].values[i]), fmt)
+            return format(float(result[c].values[i]), fmt) if c in result else "-"
         lines.append(
-            f"| {result['label'].values[i]} | {g('mean')} | {g('median')} | {g('std')} "
+            f"| {result['label'].values[i]} | {g('mean')} ± {g('mean_err', '.2g')} "
+            f"| {g('median')} ± {g('median_err', '.2g')} | {g('std')} "
             f"| {g('peak')} | {g('pareto_median')} ± {g('pareto_median_err', '.2g')} "
-            f"| {int(result['n_voxels'].values[i])} | {int(result['n_masked'].values[i])} |")
+            f"| {g('ks_d', '.3f')} ({g('ks_p_eff', '.2g')}) "
+            f"| {int(result['n_voxels'].values[i])} ({g('n_eff', '.0f')}) "
+            f"| {int(result['n_masked'].values[i])} |")
     n = result.sizes["input"]
     unit = ("voxel of the unaveraged 3D power" if a["stats_from"] == "voxels"
             else "2D (k_par, k_perp) bin")
@@ -100,9 +106,16 @@ def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
         f"L_I = 100 sqrt(P_I / P_P) per {unit}{_range_text(a)}. "
         f"Peak = centre of the fullest bin of {a['hist_binning']} "
         "(bin widths in stats.csv, `peak_bin_width`). Pareto median = 100 sqrt(loc + 2 scale) "
-        "of the maximum-likelihood fit of scipy.stats.pareto (b = 1) to W = (L_I/100)^2 "
-        "(± its standard error under the model). The standard deviation of L_I does not "
-        "converge under that model (infinite variance). Masked: voxels with P_P <= 0, a "
+        "of the maximum-likelihood fit of scipy.stats.pareto (b = 1) to W = (L_I/100)^2. "
+        f"Errors (±): {a.get('errors', 'asymptotic')}; voxels are correlated, so these "
+        "exceed the independent-voxel error (A/2) sqrt(3/n) (`pareto_median_err_iid` in "
+        "stats.csv); 'independent' = n (iid error / bootstrap error)^2. KS D = largest "
+        "difference between the L_I distribution and the fitted model's CDF, with its "
+        "p-value for that number of independent voxels (approximate: the model was fitted "
+        "to the same voxels); a small p means the single Pareto does not describe the "
+        "voxels (e.g. L_I varies with k): prefer the data median then. The standard "
+        "deviation of L_I does not converge under the model (infinite variance). "
+        "Masked: voxels with P_P <= 0, a "
         "non-finite power" + (", or P_I < 0" if a["negative_policy"] == "mask" else "")
         + "; see `n_masked_by_reason` in leakage.h5.",
         "",
@@ -174,7 +187,8 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     result = analyse(datasets, labels, inputs, stats_from=o.stats_from, negative=o.negative,
                      bins=o.bins, upper_quantile=o.upper_quantile,
                      k_par_range=o.k_par_range, k_perp_range=o.k_perp_range,
-                     field_name=o.field_name)
+                     field_name=o.field_name, n_boot=o.n_boot,
+                     bootstrap_block=o.bootstrap_block, seed=o.seed)
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise InputError(f"{outdir} exists and is not a directory")

@@ -172,9 +172,12 @@ def plot_leakage_histograms(result: xr.Dataset, path: str | os.PathLike,
             ax.set_ylabel(r"probability density [%$^{-1}$]")
         ax.set_title(str(r["label"].values))
         ax.legend(loc="upper right", fontsize=8)
-        text = (f"median (data) = {med:.3g} %\n"
+        med_err = f" ± {float(r['median_err']):.1g}" if "median_err" in r else ""
+        ks = (f"\nKS D = {float(r['ks_d']):.3f} (p = {float(r['ks_p_eff']):.2g})"
+              if "ks_d" in r else "")
+        text = (f"median (data) = {med:.3g}{med_err} %\n"
                 f"median (fit)  = {pmed:.3g} ± {float(r['pareto_median_err']):.1g} %\n"
-                f"peak = {float(r['peak']):.3g} %, mean = {float(r['mean']):.3g} %")
+                f"peak = {float(r['peak']):.3g} %, mean = {float(r['mean']):.3g} %{ks}")
         ax.text(0.97, 0.5, text, transform=ax.transAxes, ha="right", va="top", fontsize=8,
                 family="monospace",
                 bbox=dict(boxstyle="round", facecolor="white", edgecolor="0.6", alpha=0.9))

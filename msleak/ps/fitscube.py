@@ -43,6 +43,10 @@ def read_image_cube(path: str | os.PathLike, stokes: str | None = None) -> dict:
         raise InputError(f"{path}: no such image cube")
     try:
         with fits.open(path) as hdul:
+            from msleak.io.fits import check_complete
+
+            for h in hdul:
+                check_complete(path, h)
             hdu = next((h for h in hdul if h.data is not None and h.data.ndim >= 3), None)
             if hdu is None:
                 raise InputError(f"{path}: no image cube (an HDU with 3 or more axes)")

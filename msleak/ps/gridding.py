@@ -2,31 +2,50 @@
 
 Two gridders share one geometry (:class:`UVGrid`): cells of ``cell`` wavelengths centred
 on integer multiples of ``cell``, ``u`` and ``v`` from ``-M cell`` to ``+M cell``.
-
-``cell``  (nearest cell, no w-correction)
-    Every sample (baseline, time, channel) adds ``w V`` and ``w`` to the cell nearest to
-    its ``(u, v)`` in wavelengths, and ``w conj(V)`` and ``w`` to the mirrored cell
-    nearest to ``(-u, -v)`` (both Hermitian halves). The cell value is the weighted mean
-    ``sum w V / sum w`` (natural weighting). Exact; agrees with a brute-force loop.
+What a cell's power measures: the cell value is (for a well-sampled uv plane) the
+visibility at the cell centre of the sky times the station beam times the gridder's
+image-domain response ``R(l, m)``, so the power spectrum weights the sky by
+``A^2 R^2`` (A the station power beam) and its normalisation is
+``Omega = int A^2 R^2 dOmega``. ``R`` must therefore be wider than the station beam,
+or the gridder, not the beam, sets the field of view.
 
 ``wgrid`` (w-corrected, the default)
     Per channel, ducc0's wgridder makes the w-corrected dirty image
-    ``D(l, m) = sum_k w_k Re[V_k exp(+2 pi i (u_k l + v_k m + w_k (n - 1)))]`` of an
-    ``N x N`` box of pixels of ``1 / (N cell)`` rad (so the box spans ``1 / cell`` rad,
-    3.58 deg for 16 wavelengths), and of unit visibilities (the w-corrected PSF at the
-    phase centre). Both are multiplied by an image-domain taper ``A(l, m)`` (default Hann,
-    :func:`image_taper`) and FFT'd, giving at each cell centre ``u_c``
+    ``D(l, m) = sum_k w_k Re[V_k exp(+2 pi i (u_k l + v_k m + w_k (n - 1)))]`` of a box
+    :func:`box_factor` / ``cell`` rad wide, and the same for unit visibilities (the
+    w-corrected PSF). Both are multiplied by the response ``R`` (:func:`image_taper`),
+    Fourier transformed and read at the cell centres, giving
     ``N(u_c) = sum_k w_k V_k K_k(u_k - u_c)`` and ``Ntilde(u_c) = sum_k w_k K_k(u_k - u_c)``
-    with the w-projection kernel ``K_k(du) = sum_pix A exp(2 pi i (du l + w_k (n - 1)))``
-    (a real image means each sample also enters conjugated at ``-u``). The cell value is
-    the kernel-weighted mean ``N / Ntilde``. For a dense sampling of the uv plane it is the
-    ``w = 0`` visibility at the cell centre of the sky times ``A`` (w-corrected); a point
-    source at the phase centre gives exactly its flux in every cell. Cells that no sample
-    falls into (natural weight 0) stay empty. Trade-off: the Hann kernel (about 2 cells
-    wide) correlates neighbouring cells and narrows the effective field to ``A`` (Omega =
-    int A^2 = (3/8)^2 / cell^2), but keeps the estimator stable in sparsely sampled
-    cells; ``taper='none'`` keeps the whole box with a sinc-like kernel whose negative
-    lobes amplify noise in edge cells (up to 30x measured on LOFAR coverage).
+    with the w-projection kernel ``K_k(du) = sum_pix R exp(2 pi i (du l + w_k (n - 1)))``.
+    The cell value is the kernel-weighted mean ``N / Ntilde``: a point source at the
+    phase centre gives exactly its flux in every cell whatever the w's, and for a dense
+    sampling a source at (l, m) gives ``R(l, m)`` times its w = 0 visibility.
+
+    Kernels (``taper``):
+
+    ``cos2`` (default): the uv kernel (w = 0) is ``cos^2(pi du / cell) cos^2(pi dv / cell)``
+        within one cell of the sample, zero beyond: positive, one cell (a station
+        diameter for 16 wavelengths) wide, each sample feeds essentially only its own
+        cell. ``R = T(l cell) T(m cell)`` with ``T(x) = sinc(x) / (1 - x^2)`` (its
+        Fourier transform; 0.96, 0.85, 0.65, 0.50 at x = 0.25, 0.5, 0.8, 1, zero at
+        |x| >= 2), evaluated on a 4 / cell box (14.3 deg for 16 wavelengths). For
+        16-wavelength cells R^2 = 0.98, 0.90, 0.66, 0.39, 0.05 at 0.5, 1, 2, 3, 5 deg
+        on an axis (half power at 2.6 deg): wider than the station beam it multiplies
+        (LOFAR HBA core station: power FWHM ~4 deg at 150 MHz).
+    ``hann`` (legacy): ``cos^2(pi l cell) cos^2(pi m cell)`` on a 1 / cell box (3.58 deg):
+        a kernel ~4 cells wide, R^2 half power at 0.65 deg, i.e. the gridder, not the
+        beam, sets a ~1.3 deg field. Kept to reproduce earlier products.
+
+    Cells with no sample (natural weight 0) stay empty, and so do cells whose samples
+    all sit on the cell's rim (kernel-weighted weight below :data:`MASK_FRACTION` of
+    the natural weight), where the ratio would amplify noise. Samples are buffered and
+    gridded in large batches (:attr:`WGridAccumulator.buffer_samples`) because each
+    ducc0 call has a fixed cost.
+
+``cell``  (nearest cell, no w-correction)
+    Every sample adds ``w V`` and ``w`` to the cell nearest to its ``(u, v)`` and
+    ``w conj(V)`` and ``w`` to the mirrored cell (both Hermitian halves); the value is
+    ``sum w V / sum w``. Response ``R = sinc(l cell) sinc(m cell)`` for dense sampling.
 
 Sign convention of the visibilities: ``V = sum B exp(-2 pi i (u l + v m + w (n - 1)))``
 (design.md) with (u, v, w) = uvw_p - uvw_q, i.e. minus the MS's UVW column (which holds
@@ -48,43 +67,132 @@ from msleak.errors import InputError
 __all__ = [
     "SPEED_OF_LIGHT", "Gridder", "UVGrid", "make_grid", "stokes_weights",
     "CellAccumulator", "WGridAccumulator", "make_accumulator",
-    "wgrid_kernel_bruteforce", "GRIDDER_DESCRIPTIONS", "Taper", "image_taper",
-    "taper_area_sr",
+    "wgrid_kernel_bruteforce", "GRIDDER_DESCRIPTIONS", "Taper", "TAPERS", "DEFAULT_TAPER",
+    "MASK_FRACTION", "box_factor", "response_profile", "gridder_response", "image_taper",
+    "taper_area_sr", "airy_power", "primary_fwhm_deg", "beam_area_model", "response_attrs",
 ]
 
 log = logging.getLogger(__name__)
 
 SPEED_OF_LIGHT = 299_792_458.0  # m/s
 Gridder = Literal["wgrid", "cell"]
-Taper = Literal["hann", "none"]
+Taper = Literal["cos2", "hann"]
+TAPERS = ("cos2", "hann")
+DEFAULT_TAPER = "cos2"
+#: a ``wgrid`` cell is used only if its kernel-weighted weight is at least this
+#: fraction of its natural weight (its samples are not all on the cell's rim)
+MASK_FRACTION = 0.05
+_BOX = {"cos2": 4, "hann": 1}
+
+
+def _check_taper(name: str) -> None:
+    if name == "none":
+        raise InputError("taper 'none' was removed: its sinc kernel amplified noise 1.6-4.5x "
+                         "in sparsely sampled cells; use 'cos2' (default) or 'hann'")
+    if name not in _BOX:
+        raise InputError(f"unknown taper {name!r}: use 'cos2' or 'hann'")
+
+
+def box_factor(name: Taper) -> int:
+    """Width of the ``wgrid`` image box in units of ``1 / cell`` rad."""
+    _check_taper(name)
+    return _BOX[name]
+
+
+def response_profile(name: str, x: np.ndarray) -> np.ndarray:
+    """One-axis image-domain amplitude response at ``x = l * cell`` (dense sampling).
+
+    ``cos2``: ``sinc(x) / (1 - x^2)`` for |x| < 2 (0.5 at |x| = 1), else 0 (the Fourier
+    transform of the one-cell ``cos^2`` uv kernel); ``hann``: ``cos^2(pi x)`` for
+    |x| < 1/2, else 0; ``cell`` (nearest-cell gridder): ``sinc(x)``.
+    """
+    x = np.asarray(x, dtype=float)
+    if name == "cell":
+        return np.sinc(x)
+    _check_taper(name)
+    if name == "hann":
+        return np.where(np.abs(x) < 0.5, np.cos(np.pi * x) ** 2, 0.0)
+    ax = np.abs(x)
+    near = np.abs(ax - 1.0) < 1e-6
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.sinc(x) / (1.0 - x * x)
+    return np.where(ax >= 2.0, 0.0, np.where(near, 0.5, t))
+
+
+def gridder_response(gridder: str, taper: str, l: np.ndarray, m: np.ndarray,
+                     cell: float) -> np.ndarray:
+    """Documented amplitude response ``R(l, m)`` (direction cosines) of a gridder."""
+    name = "cell" if gridder == "cell" else taper
+    return (response_profile(name, np.asarray(l) * cell)
+            * response_profile(name, np.asarray(m) * cell))
 
 
 def image_taper(name: Taper, n: int) -> np.ndarray:
-    """Image-domain taper A (n, n) of the ``wgrid`` gridder, 1 at the phase centre.
-
-    ``hann``: ``cos^2(pi l / L) cos^2(pi m / L)`` over the box of side L = n pixels (zero
-    with zero slope at the box edge, so the uv kernel is compact and positive in its
-    core: [1/4, 1/2, 1/4] at whole-cell offsets); ``none``: 1 (box; sinc-like kernel).
-    """
-    if name == "none":
-        return np.ones((n, n))
-    if name != "hann":
-        raise InputError(f"unknown taper {name!r}: use 'hann' or 'none'")
-    x = (np.arange(n) - n // 2) / n
-    a = np.cos(np.pi * x) ** 2
+    """``R`` (n, n) on the ``wgrid`` box of ``n`` pixels (``box_factor / cell`` rad), 1 at
+    pixel ``n // 2`` (the phase centre); zero at the box edge."""
+    x = (np.arange(n) - n // 2) / n * box_factor(name)
+    a = response_profile(name, x)
     return np.outer(a, a)
 
 
 def taper_area_sr(name: Taper, grid: "UVGrid") -> float:
-    """``int A^2 dOmega`` (sr) of the taper over the box (the Omega it implies)."""
-    a = image_taper(name, grid.npix_image)
-    return float(np.sum(a ** 2) * grid.pixel_rad ** 2)
+    """``int R^2 dOmega`` (sr) of the ``wgrid`` response over its box."""
+    n = box_factor(name) * grid.npix_image
+    return float(np.sum(image_taper(name, n) ** 2) * grid.pixel_rad ** 2)
+
+
+def airy_power(theta: np.ndarray, diameter: float) -> np.ndarray:
+    """Power beam ``(2 J1(x) / x)^2``, ``x = pi D theta``, of a uniformly illuminated disc
+    of ``diameter`` wavelengths (theta in rad); FWHM 1.029 / D rad, first null 1.22 / D."""
+    from scipy.special import j1
+
+    x = np.pi * diameter * np.asarray(theta, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(x == 0, 1.0, 2.0 * j1(x) / np.where(x == 0, 1.0, x))
+    return a * a
+
+
+def primary_fwhm_deg(diameter: float) -> float:
+    """FWHM (deg) of :func:`airy_power` for an aperture of ``diameter`` wavelengths."""
+    return math.degrees(1.02899 / diameter)
+
+
+def beam_area_model(gridder: str, taper: str, cell: float,
+                    diameter: float | None = None) -> float:
+    """``Omega = int A^2 R^2 dOmega`` (sr): A = :func:`airy_power` of an aperture of
+    ``diameter`` wavelengths (default ``cell``: the cell is the station diameter), R the
+    gridder's response (:func:`gridder_response`), small-angle (flat-sky) integral."""
+    d = float(diameter or cell)
+    half = 8.0 / min(cell, d)
+    x = np.linspace(-half, half, 1201)
+    l, m = np.meshgrid(x, x)
+    f = (airy_power(np.hypot(l, m), d) * gridder_response(gridder, taper, l, m, cell)) ** 2
+    return float(f.sum() * (x[1] - x[0]) ** 2)
+
+
+def response_attrs(gridder: str, taper: str, cell: float) -> dict:
+    """uvcube attributes describing what the gridded cells see (docs/grid.md)."""
+    name = "cell" if gridder == "cell" else taper
+    x = np.linspace(0, 2, 20001)
+    half_power = float(x[np.argmax(response_profile(name, x) ** 2 < 0.5)])
+    return {
+        "taper": taper if gridder == "wgrid" else "none (nearest cell: sinc x sinc response)",
+        "fov_deg": math.degrees(2 * half_power / cell),
+        "fov_definition": "full width at half power of the gridder's response R^2 on an axis",
+        "primary_fwhm_deg": primary_fwhm_deg(cell),
+        "primary_beam_model": "Airy disc of diameter cell wavelengths (the station diameter)",
+        "beam_area_sr": beam_area_model(gridder, taper, cell),
+        "beam_area_source": "int A^2 R^2 dOmega: A Airy power beam of a cell-wide aperture, "
+                            "R the gridder's response",
+    }
+
 
 GRIDDER_DESCRIPTIONS = {
     "cell": "nearest cell, natural weighting, no w-correction",
     "wgrid": "w-corrected (ducc0 wgridder, exact w-gridding to epsilon) dirty images of a "
-             "1/cell rad box, FFT to the uv plane, normalised by the FFT of the w-corrected "
-             "PSF (kernel-weighted mean per cell)",
+             "box of several station beams, times the gridder response, FFT read at the cell "
+             "centres, normalised by the same for the w-corrected PSF (kernel-weighted mean "
+             "per cell)",
 }
 
 
@@ -106,13 +214,14 @@ class UVGrid:
 
     @property
     def npix_image(self) -> int:
-        """Side of the (even, >= 32) image box used by the ``wgrid`` gridder."""
+        """Pixels (even, >= 32) across ``1 / cell`` rad; the ``wgrid`` box has
+        :func:`box_factor` times as many pixels of the same size."""
         n = max(32, 2 * (self.M + 2))
         return n + (n % 2)
 
     @property
     def pixel_rad(self) -> float:
-        """Pixel size of the image box, rad (the box spans ``1 / cell`` rad)."""
+        """Pixel size of the ``wgrid`` image box, rad (``npix_image`` pixels span ``1 / cell``)."""
         return 1.0 / (self.npix_image * self.cell)
 
 
@@ -221,9 +330,11 @@ class CellAccumulator:
 class WGridAccumulator:
     """w-corrected gridding through ducc0 dirty images, accumulated over row chunks.
 
-    Holds, per channel, the dirty images of the Stokes visibilities and of unit
-    visibilities (the PSF), plus nearest-cell natural weights (for the ``weight``
-    output and the empty-cell mask). See the module docstring for the estimator.
+    Buffers samples and grids them (per channel, into dirty images of the Stokes
+    visibilities and of unit visibilities) when ``buffer_samples`` (row x channel)
+    samples are waiting, when merged or when the result is asked for; also keeps
+    nearest-cell natural weights (the ``weight`` output and the empty-cell mask). See
+    the module docstring for the estimator.
 
     Parameters
     ----------
@@ -234,20 +345,46 @@ class WGridAccumulator:
     epsilon : float
         ducc0 accuracy (relative, on the dirty image).
     nthreads : int
+    taper : {'cos2', 'hann'}
+    buffer_samples : int
+        Samples (rows x channels) buffered before gridding (~100 bytes each).
     """
 
     def __init__(self, grid: UVGrid, freq: np.ndarray, nstokes: int = 4,
-                 epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = "hann"):
-        n = grid.npix_image
+                 epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER,
+                 buffer_samples: int = 2_000_000):
+        self.factor = box_factor(taper)
+        n = self.factor * grid.npix_image
         self.taper = taper
         self.taper_image = image_taper(taper, n)
         self.grid = grid
         self.freq = np.asarray(freq, dtype=np.float64)
         self.nchan = self.freq.size
+        self.nstokes = int(nstokes)
         self.epsilon = float(epsilon)
         self.nthreads = int(nthreads)
-        self.dirty = np.zeros((nstokes + 1, self.nchan, n, n), dtype=np.float64)
+        self.buffer_samples = int(buffer_samples)
+        self._npix = n
+        self._dirty: np.ndarray | None = None  # allocated at the first flush
         self.natural = CellAccumulator(grid, self.nchan, nstokes=0)
+        self._buffer: list = []
+        self._nbuffer = 0
+
+    @property
+    def npix(self) -> int:
+        return self._npix
+
+    @property
+    def dirty(self) -> np.ndarray:
+        """(stokes + 1, chan, n, n) dirty images (the last one of unit visibilities)."""
+        if self._dirty is None:
+            n = self._npix
+            self._dirty = np.zeros((self.nstokes + 1, self.nchan, n, n), dtype=np.float64)
+        return self._dirty
+
+    @dirty.setter
+    def dirty(self, value: np.ndarray) -> None:
+        self._dirty = value
 
     def add(self, uvw_m: np.ndarray, vis: np.ndarray, wgt: np.ndarray) -> None:
         """Add samples.
@@ -255,66 +392,110 @@ class WGridAccumulator:
         Parameters
         ----------
         uvw_m : (row, 3) float
-            uvw in metres as in the MS.
+            uvw in metres, kernel sign convention (minus the MS's UVW).
         vis : (stokes, row, chan) complex
             Stokes visibilities, Jy.
         wgt : (row, chan) float
             Natural weights; 0 drops a sample.
         """
+        uvw_m = np.asarray(uvw_m, dtype=np.float64)
+        wgt = np.asarray(wgt, dtype=np.float64)
+        scale = self.freq / SPEED_OF_LIGHT
+        self.natural.add(uvw_m[:, :1] * scale, uvw_m[:, 1:2] * scale,
+                         np.zeros((0,) + wgt.shape, complex), wgt)
+        keep = (wgt > 0).any(axis=1)
+        if not keep.any():
+            return
+        self._buffer.append((uvw_m[keep], np.asarray(vis, np.complex128)[:, keep], wgt[keep]))
+        self._nbuffer += int(keep.sum()) * self.nchan
+        if self._nbuffer >= self.buffer_samples:
+            self.grid_buffer()
+
+    def flush(self) -> None:
+        """End-of-task hook: grid the buffer if it is worth ducc0 calls of its own (at
+        least a quarter of ``buffer_samples``); smaller buffers travel with the
+        accumulator and are gridded together with others (merge, result): each ducc0
+        call costs the FFTs of its w-planes (~10 ms for the 4/cell box) whatever its size,
+        so gridding every small chunk on its own made the paper-size run 3x slower."""
+        if self._nbuffer >= self.buffer_samples // 4:
+            self.grid_buffer()
+
+    def grid_buffer(self) -> None:
+        """Grid the buffered samples into the dirty images."""
+        if not self._buffer:
+            return
         try:
             from ducc0.wgridder import vis2dirty
         except ImportError as err:  # pragma: no cover - ducc0 is a dependency
             raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
-        uvw_m = np.ascontiguousarray(uvw_m, dtype=np.float64)
-        scale = self.freq / SPEED_OF_LIGHT
-        self.natural.add(uvw_m[:, :1] * scale, uvw_m[:, 1:2] * scale,
-                         np.zeros((0,) + wgt.shape, complex), wgt)
-        n, dl = self.grid.npix_image, self.grid.pixel_rad
+        uvw_m = np.concatenate([b[0] for b in self._buffer])
+        vis = np.concatenate([b[1] for b in self._buffer], axis=1)
+        wgt = np.concatenate([b[2] for b in self._buffer])
+        self._buffer, self._nbuffer = [], 0
+        n, dl = self.npix, self.grid.pixel_rad
         for c in range(self.nchan):
             sel = np.flatnonzero(wgt[:, c] > 0)
             if sel.size == 0:
                 continue
-            uvw = uvw_m[sel]
-            w = np.ascontiguousarray(wgt[sel, c:c + 1], dtype=np.float64)
-            kw = dict(uvw=uvw, freq=self.freq[c:c + 1], wgt=w, npix_x=n, npix_y=n,
-                      pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon, do_wgridding=True,
-                      flip_w=True, divide_by_n=False, nthreads=self.nthreads)
-            for s in range(self.dirty.shape[0] - 1):
-                v = np.ascontiguousarray(vis[s, sel, c:c + 1], dtype=np.complex128)
+            w = np.ascontiguousarray(wgt[sel, c:c + 1])
+            kw = dict(uvw=np.ascontiguousarray(uvw_m[sel]), freq=self.freq[c:c + 1], wgt=w,
+                      npix_x=n, npix_y=n, pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon,
+                      do_wgridding=True, flip_w=True, divide_by_n=False,
+                      nthreads=self.nthreads)
+            for s in range(self.nstokes):
+                v = np.ascontiguousarray(vis[s, sel, c:c + 1])
                 self.dirty[s, c] += vis2dirty(vis=v, **kw)
             self.dirty[-1, c] += vis2dirty(vis=np.ones((sel.size, 1), np.complex128), **kw)
 
     def numerators(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(N (stokes, chan, v, u), Ntilde (chan, v, u))``, complex, on the output grid."""
-        g, n = self.grid.size, self.grid.npix_image
-        lo = n // 2 - self.grid.M
-        # D[ix, iy] with l = (ix - n/2) dl: F[u_c] = sum D exp(-2 pi i (u_c l + v_c m))
+        """``(N (stokes, chan, v, u), Ntilde (chan, v, u))``, complex, on the output grid
+        (unnormalised: one sample of weight w at a cell centre gives Ntilde = w sum(R) / 2
+        there)."""
+        self.grid_buffer()
+        g, n, M = self.grid.size, self.npix, self.grid.M
+        # D[ix, iy] with l = (ix - n/2) dl: F[u] = sum D exp(-2 pi i (u l + v m)) on a grid
+        # of cell / factor wavelengths; the cell centres are every factor-th point
         f = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(self.dirty * self.taper_image,
                                                          axes=(-2, -1))),
                             axes=(-2, -1))
-        f = f[..., lo:lo + g, lo:lo + g]
+        idx = n // 2 + self.factor * np.arange(-M, M + 1)
+        f = f[..., idx, :][..., idx]
+        assert f.shape[-1] == g
         f = np.swapaxes(f, -1, -2)  # (..., u, v) -> (..., v, u)
         return f[:-1], f[-1]
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))``."""
+        """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))``; weight is the
+        natural weight of the used cells (0: empty or masked)."""
         num, den = self.numerators()
-        weight = self.natural.sum_w.copy()
-        ok = weight > 0
+        natural = self.natural.sum_w
+        kernel_weight = 2.0 * den.real / self.taper_image.sum()
+        ok = (natural > 0) & (kernel_weight >= MASK_FRACTION * natural)
+        n_masked = int(((natural > 0) & ~ok).sum())
+        if n_masked:
+            log.info("wgrid: %d of %d (cell, channel) samples left empty: their samples sit "
+                     "on the cell rim (kernel weight < %g of natural weight)", n_masked,
+                     int((natural > 0).sum()), MASK_FRACTION)
         with np.errstate(invalid="ignore", divide="ignore"):
             vis = np.where(ok, num / np.where(ok, den, 1.0), 0.0)
-        return vis, weight
+        return vis, np.where(ok, natural, 0.0)
 
     def merge(self, other: "WGridAccumulator") -> "WGridAccumulator":
-        out = WGridAccumulator(self.grid, self.freq, self.dirty.shape[0] - 1,
-                               self.epsilon, self.nthreads, self.taper)
-        out.dirty = self.dirty + other.dirty
+        out = WGridAccumulator(self.grid, self.freq, self.nstokes, self.epsilon,
+                               self.nthreads, self.taper, self.buffer_samples)
+        if self._dirty is not None or other._dirty is not None:
+            out.dirty = (self._dirty if self._dirty is not None else 0.0) + (
+                other._dirty if other._dirty is not None else 0.0)
         out.natural = self.natural.merge(other.natural)
+        out._buffer = self._buffer + other._buffer
+        out._nbuffer = self._nbuffer + other._nbuffer
+        if out._nbuffer >= out.buffer_samples:
+            out.grid_buffer()
         return out
 
 
 def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
-                     epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = "hann"):
+                     epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER):
     """A fresh accumulator of the named gridder."""
     if gridder == "cell":
         return CellAccumulator(grid, len(freq))
@@ -324,13 +505,13 @@ def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
 
 
 def wgrid_kernel_bruteforce(grid: UVGrid, u: float, v: float, w: float,
-                            taper: Taper = "hann") -> np.ndarray:
+                            taper: Taper = DEFAULT_TAPER) -> np.ndarray:
     """Direct evaluation of the ``wgrid`` kernel of one sample on the output grid.
 
-    Returns ``K(v_c, u_c) = sum_pix exp(2 pi i ((u - u_c) l + (v - v_c) m + w (n - 1)))``,
-    shape (size, size), for tests and documentation (slow: O(npix^2 size^2)).
+    Returns ``K(v_c, u_c) = sum_pix R exp(2 pi i ((u - u_c) l + (v - v_c) m + w (n - 1)))``,
+    shape (size, size), over the taper's box, for tests (slow: O(npix^2 size^2)).
     """
-    n, dl = grid.npix_image, grid.pixel_rad
+    n, dl = box_factor(taper) * grid.npix_image, grid.pixel_rad
     x = (np.arange(n) - n // 2) * dl
     l, m = np.meshgrid(x, x, indexing="ij")
     nn = np.sqrt(1.0 - l * l - m * m) - 1.0

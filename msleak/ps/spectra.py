@@ -86,7 +86,8 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
     log_perp : logarithmic |b| bins
     n_sph : number of logarithmic spherical k bins
     kperp_1d : (min, max) k_perp (Mpc^-1) averaged in the 1D PS
-    primary_theta_deg : angle of the primary wedge (default half the field of view)
+    primary_theta_deg : angle of the primary wedge (default half the cube's
+        ``primary_fwhm_deg``, the station beam's FWHM; else half its ``fov_deg``)
     beam_area_sr : Omega (default the delay cube's ``beam_area_sr``)
     cross : use the cross-power of ``vis_a``, ``vis_b`` (default: when they exist)
     bin_width : |b| bin width in wavelengths (linear bins from the uv minimum, as many
@@ -147,7 +148,12 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
     p_1d, c_1d = binning.average_1d(p3d * scale, delay, kperp_cell, *kperp_1d)
     if c_1d.max() == 0:
         log.warning("no uv cell has k_perp in %g..%g Mpc^-1: the 1D PS is empty", *kperp_1d)
-    theta_p = primary_theta_deg if primary_theta_deg is not None else a.get("fov_deg", 0) / 2
+    if primary_theta_deg is not None:
+        theta_p = primary_theta_deg
+    elif a.get("primary_fwhm_deg"):  # half the station beam's FWHM (recorded by msleak grid)
+        theta_p = float(a["primary_fwhm_deg"]) / 2
+    else:
+        theta_p = a.get("fov_deg", 0) / 2
     stokes = dl["stokes"].values
     d3 = ("stokes", "delay3d", "cell")
     ds = xr.Dataset(
@@ -181,7 +187,8 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
                 "delay3d": ("delay3d", delay, {"units": "s"})},
     )
     keep = ("cell_lambda", "uv_min_lambda", "uv_max_lambda", "source", "source_kind",
-            "column", "field_id", "gridder", "w_correction", "fov_deg", "window",
+            "column", "field_id", "gridder", "w_correction", "fov_deg", "taper",
+            "primary_fwhm_deg", "window",
             "window_norm", "freq_centre_hz", "bandwidth_hz", "nchan", "channel_width_hz",
             "fft_convention", "stokes_convention", "split", "empty_cell_policy")
     ds.attrs.update({k: a[k] for k in keep if k in a})

@@ -12,6 +12,14 @@ Conventions
 * Brightness units are ``"K"`` (Rayleigh-Jeans brightness temperature) or ``"Jy/pixel"``
   (flux density of the pixel), related by S = 2 k_B T Omega_pix / lambda^2 with Omega_pix
   the true solid angle of each pixel (Delta l Delta m / n for SIN).
+* Polarization frame (FITS/IAU convention): Stokes Q and U of every pixel are referred to
+  the local celestial North at that pixel's direction, the polarization angle
+  chi = atan2(U, Q) / 2 counted from North through East. This is the frame of the beam's
+  (North, East) basis at each source in predict. The image +y axis points along local
+  North only on the central meridian: at a pixel it points at the position angle psi
+  (:func:`y_axis_position_angle`), up to +-10.6 deg in the corners of a 15 deg cube at
+  Dec 48 deg and any angle around a celestial pole. ``meta["POLFRAME"]`` is
+  ``"LOCAL-NORTH"`` for cubes msleak makes.
 """
 
 from __future__ import annotations
@@ -39,6 +47,9 @@ __all__ = [
     "crop",
     "recentre",
     "pixel_size_deg",
+    "y_axis_position_angle",
+    "rotate_polarization",
+    "POLFRAME",
 ]
 
 Units = Literal["K", "Jy/pixel"]
@@ -49,6 +60,13 @@ STOKES_CODES = {"I": 1, "Q": 2, "U": 3, "V": 4}
 K_B = 1.380649e-23          # J / K (exact, SI 2019)
 C_LIGHT = 299_792_458.0     # m / s (exact)
 JY = 1e-26                  # W m^-2 Hz^-1
+
+#: ``meta["POLFRAME"]`` of cubes whose Q, U are referred to the local North of each pixel
+POLFRAME = "LOCAL-NORTH"
+
+#: pixels closer than this to a celestial pole (rad) take the North of their own meridian,
+#: as the beam does (msleak.beam.coords.POLE_EPS_RAD)
+_POLE_EPS = 1e-8
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,12 +298,69 @@ def crop(cube: SkyCube, *, fov_deg: float | None = None, npix: int | None = None
     return replace(cube, data=data, wcs=w, meta=meta)
 
 
+def y_axis_position_angle(wcs, shape: tuple[int, int], h: float = 1e-3) -> np.ndarray:
+    """Position angle psi of the image +y direction at every pixel centre, rad (ny, nx).
+
+    psi is counted from the local celestial North through East at the pixel's direction:
+    the tangent t = ds/dy of the pixel-centre unit vector s (central differences of
+    +-``h`` pixel through the WCS) gives psi = atan2(t . East, t . North), with
+    East = (-sin a, cos a, 0) and North = (-sin d cos a, -sin d sin a, cos d). A pixel
+    within 1e-8 rad of a pole takes the North of its own right ascension's meridian (as
+    the beam does). A polarization vector at angle chi_y from +y (towards the image
+    direction 90 deg east of it) has the position angle chi_y + psi, i.e.
+    Q + iU (local North) = (Q + iU)(+y) exp(2i psi).
+    """
+    ny, nx = shape
+    y, x = np.mgrid[0:ny, 0:nx].astype(float)
+    t = _unit_vectors(wcs, x, y + h) - _unit_vectors(wcs, x, y - h)
+    ra, dec = wcs.all_pix2world(x, y, 0)
+    ra = np.radians(ra)
+    dec = np.clip(np.radians(dec), -np.pi / 2 + _POLE_EPS, np.pi / 2 - _POLE_EPS)
+    east = np.stack([-np.sin(ra), np.cos(ra), np.zeros_like(ra)])
+    north = np.stack([-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec)])
+    psi = np.arctan2(np.sum(t * east, axis=0), np.sum(t * north, axis=0))
+    if not np.all(np.isfinite(psi)):
+        raise InputError("the polarization frame is undefined at some pixels (beyond the "
+                         "projection's horizon?); crop the cube with --fov")
+    return psi
+
+
+def rotate_polarization(cube: SkyCube, angle: np.ndarray) -> SkyCube:
+    """Rotate every pixel's polarization: Q + iU -> (Q + iU) exp(2i angle).
+
+    Parameters
+    ----------
+    cube : SkyCube
+    angle : (ny, nx) or scalar, rad; positive from North towards East
+
+    A cube with only one of Q and U gets the other (zeros before the rotation); I and V
+    are unchanged.
+    """
+    angle = np.asarray(angle, dtype=float)
+    if not np.any(angle) or not ({"Q", "U"} & set(cube.stokes)):
+        return cube
+    if not {"Q", "U"} <= set(cube.stokes):
+        labels = tuple(sorted(set(cube.stokes) | {"Q", "U"}, key=STOKES_CODES.get))
+        data = np.stack([cube.plane(st) for st in labels])
+        cube = replace(cube, data=data, stokes=labels)
+    iq, iu = cube.stokes.index("Q"), cube.stokes.index("U")
+    p = (cube.data[iq] + 1j * cube.data[iu]) * np.exp(2j * angle)
+    data = np.array(cube.data, copy=True)
+    data[iq], data[iu] = p.real, p.imag
+    return replace(cube, data=data.astype(cube.data.dtype, copy=False))
+
+
 def recentre(cube: SkyCube, ra: float, dec: float) -> SkyCube:
     """Move the cube to a new phase centre (RA, Dec in rad).
 
     The projection-plane grid is kept (same projection, CRPIX, CDELT), only the reference
     direction CRVAL changes: every pixel keeps its (l, m) relative to the reference, so a
-    cube made for one field can be placed on any other. LONPOLE is set to 180 deg.
+    cube made for one field can be placed on any other. LONPOLE is set to 180 deg. For a
+    zenithal projection this moves the whole pattern by one rotation of the sphere, which
+    carries each pixel's polarization vector along with the grid: its angle from the
+    image +y axis is kept, so Q + iU (local North) is rotated by
+    exp(2i (psi_new - psi_old)), psi the position angle of +y (:func:`y_axis_position_angle`)
+    at the pixel's old and new directions. Re-centring back returns the original Q, U.
     """
     dec_deg = math.degrees(dec)
     if not (-90.0 - 1e-9 <= dec_deg <= 90.0 + 1e-9):
@@ -294,4 +369,9 @@ def recentre(cube: SkyCube, ra: float, dec: float) -> SkyCube:
     w.wcs.crval = [math.degrees(ra) % 360.0, min(max(dec_deg, -90.0), 90.0)]
     w.wcs.lonpole = 180.0
     w.wcs.set()
-    return replace(cube, wcs=w)
+    moved = replace(cube, wcs=w)
+    if {"Q", "U"} & set(cube.stokes):
+        turn = y_axis_position_angle(w, cube.npix) - y_axis_position_angle(cube.wcs,
+                                                                            cube.npix)
+        moved = rotate_polarization(moved, turn)
+    return moved

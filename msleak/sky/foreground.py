@@ -16,9 +16,15 @@ lambda^2)) (see :mod:`msleak.sky.faraday`), scaled in brightness temperature as 
 beta = (p + 3) / 2, and normalised so that the rms of |P| over the map at ``ref_freq_hz``
 equals ``p_rms_k`` (the emissivity's absolute scale is the one free calibration constant).
 
-Box axes: z away from the observer, y towards +Dec (north), x along the image x axis
-(towards -RA, west). Sky-plane components: B_north = B_y, B_east = -B_x; B_par = -B_z
-(positive towards the observer gives positive Faraday depth).
+Box axes: z away from the observer, y along the image +y axis (north at the centre), x
+along the image x axis (west at the centre). Sky-plane components: B_north = B_y,
+B_east = -B_x; B_par = -B_z (positive towards the observer gives positive Faraday depth).
+The box is a flat slab, so its angles are referred to the image +y axis; the cube's Q and
+U are then turned to the FITS convention, the local North of each pixel (see
+:mod:`msleak.sky.cube`): Q + iU = (Q + iU)(+y) exp(2i psi), psi the position angle of
+the image +y direction at the pixel (:func:`msleak.sky.cube.y_axis_position_angle`).
+A regular field that is uniform in the image therefore has a polarization angle that
+turns with right ascension around a celestial pole.
 
 Every random field has its own child of one :class:`numpy.random.SeedSequence`, so the
 same seed gives the same cube bit for bit, and changing one field's options leaves the
@@ -34,7 +40,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from msleak.errors import InputError
-from msleak.sky.cube import SkyCube, make_celestial_wcs
+from msleak.sky.cube import (POLFRAME, SkyCube, make_celestial_wcs,
+                             y_axis_position_angle)
 from msleak.sky.faraday import (faraday_depth_near_face, faraday_thickness,
                                 polarized_brightness)
 from msleak.sky.fields import gaussian_random_field, lognormal_field, solenoidal_vector_field
@@ -209,19 +216,31 @@ def generate_foreground_cube(*, npix: int = 50, fov_deg: float = 15.0,
     rms_ref = float(np.sqrt(np.mean(np.abs(ref) ** 2)))
     if rms_ref == 0:
         raise InputError("the model has no polarized emission (B_perp or n_CR is zero)")
+    if not math.isfinite(rms_ref):
+        raise InputError("the foreground parameters overflow (non-finite brightness); use "
+                         "physically sensible values")
     scale = params.p_rms_k / rms_ref
     spectral = (freq / params.ref_freq_hz) ** (-beta)
     pcube = polarized_brightness(box.amp * scale, box.chi0, box.dphi, freq,
                                  spectral_factor=spectral)
     data = np.stack([pcube.real, pcube.imag])
+    if not np.all(np.isfinite(data)):
+        raise InputError("the foreground parameters overflow (non-finite brightness, e.g. an "
+                         "extreme --electron-index over the band); use physically sensible "
+                         "values")
     phi_total = box.faraday_depth()[-1]
     phi_all = faraday_depth_near_face(box.dphi) + 0.5 * box.dphi
     ra0, dec0 = phase_centre
     wcs = make_celestial_wcs(npix, npix, fov_deg / npix, math.degrees(ra0), math.degrees(dec0))
+    # the box's angles are referred to the image +y axis; FITS Q, U to the local North
+    turn = np.exp(2j * y_axis_position_angle(wcs, (npix, npix)))[None]
+    pcube = pcube * turn
+    data = np.stack([pcube.real, pcube.imag])
     meta = {f"P_{k.upper()}": (v if not isinstance(v, tuple) else ",".join(map(str, v)))
             for k, v in asdict(params).items() if v is not None}
     meta.update({
         "GENERATR": "msleak.sky.foreground (Jelic et al. 2008/2010 model B)",
+        "POLFRAME": POLFRAME,
         "SEED": entropy,
         "BETA": beta,
         "EMSCALE": scale,

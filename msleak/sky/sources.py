@@ -271,6 +271,10 @@ def sources_from_cube(path_or_cube: str | os.PathLike | SkyCube, *,
     -------
     Tabulated :class:`PointSources`, sources in pixel order (y-major), spectra at the
     cube's channels; K cubes are converted with S = 2 k_B T Omega_pix / lambda^2.
+    Q and U are passed unchanged: the cube's are referred to the local North of each
+    pixel (FITS convention, :mod:`msleak.sky.cube`), which is the frame predict and the
+    beam use at each source's direction. Re-centring turns them with the grid
+    (:func:`msleak.sky.cube.recentre`).
     """
     if isinstance(path_or_cube, SkyCube):
         cube = path_or_cube

@@ -42,6 +42,9 @@ FIELD_PRESETS = {
     "3c196": FieldPreset("3C196", 123.4, 48.2, 8.0, "2012-12-16", True),
 }
 
+#: Most time slots one simulated MS may have (guards against typos such as 1e6 hours)
+_MAX_TIME_SLOTS = 1e7
+
 #: Default start for the NCP (any time sees it at the same elevation from LOFAR)
 _NCP_START = "2013-02-06T12:00:00"
 _DEFAULT_DATE = "2013-01-01"
@@ -113,7 +116,11 @@ def simulate_ms(path: str | Path, *, field: str | None = "3c196",
             raise InputError(f"{name} must be positive, got {value}")
     if int(nchan) != nchan or nchan <= 0:
         raise InputError(f"--nchan must be a positive integer, got {nchan}")
-    ntime = int(round(duration_h * 3600.0 / interval_s))
+    slots = duration_h * 3600.0 / interval_s
+    if not slots <= _MAX_TIME_SLOTS:
+        raise InputError(f"--duration {duration_h} h at --interval {interval_s} s is "
+                         f"{slots:.3g} time slots; at most {_MAX_TIME_SLOTS:.0e} are supported")
+    ntime = int(round(slots))
     if ntime < 1:
         raise InputError(f"--duration {duration_h} h is shorter than one --interval of {interval_s} s")
     if path.exists():
@@ -153,10 +160,16 @@ def simulate_ms(path: str | Path, *, field: str | None = "3c196",
         f"RA{ra_deg:.3f}_DEC{dec_deg:+.3f}"
     log.info("creating %s: %d antennas, %d baselines, %d times x %.0f s, %d channels (%d rows)",
              path, nant, nbl, ntime, interval_s, nchan, nrows)
-    create_ms_tables(path, layout=lay, freq=freq, chan_width=chan_width_hz, ra=ra, dec=dec,
-                     field_name=name, time_range=(t_start, t_start + ntime * interval_s),
-                     nrows=nrows)
+    from msleak.io.columns import check_free_space
+
+    # DATA (complex64), WEIGHT_SPECTRUM (float32), FLAG (bits), ~200 B of other columns a
+    # row, plus tiles and subtables: casacore aborts the process on a full disk.
+    check_free_space(path.parent, nrows * (int(nchan) * 4 * 12.2 + 200) + 1.5 * 2**20,
+                     f"the Measurement Set {path}")
     try:
+        create_ms_tables(path, layout=lay, freq=freq, chan_width=chan_width_hz, ra=ra,
+                         dec=dec, field_name=name,
+                         time_range=(t_start, t_start + ntime * interval_s), nrows=nrows)
         _fill_main(path, times, interval_s, a1, a2, lay.positions, ra, dec, int(nchan),
                    chunk_rows, progress)
     except BaseException:
