@@ -70,7 +70,7 @@ def write_report(cfg, steps, step_log, seconds: float) -> Path:
         "",
         "## Sky model",
         "",
-        f"![sky](figures/sky.png)",
+        "![sky](figures/sky.png)",
         "",
     ]
     estimates = []

@@ -189,8 +189,12 @@ def bench_image(work: Path, uv=(30.0, 180.0)) -> dict:
     out["k_par_msleak_first"] = np.round(kpar_m[:4], 5).tolist()
     out["k_par_ps_eor_first"] = np.round(kpar_e[:4], 5).tolist()
     n = min(kper_m.size, kper_e.size)
-    out["k_perp_max_rel_diff"] = float(np.max(np.abs(kper_m[:n] / kper_e[:n] - 1)))
-    out["k_perp_lo_msleak"] = np.round(ours["k_perp_lo"].values, 5).tolist()
+    # ps_eor labels a k_per bin by its lower edge: compare it with msleak's lower edges
+    kper_lo = ours["k_perp_lo"].values
+    nlo = min(kper_lo.size, kper_e.size)
+    out["k_perp_max_rel_diff"] = float(np.max(np.abs(kper_lo[:nlo] / kper_e[:nlo] - 1)))
+    out["k_perp_centre_vs_ps_eor_max_rel_diff"] = float(np.max(np.abs(kper_m[:n] / kper_e[:n] - 1)))
+    out["k_perp_lo_msleak"] = np.round(kper_lo, 5).tolist()
     m = min(kpar_m.size, kpar_e.size)
     nz = slice(0, m)
     out["k_par_max_rel_diff"] = float(np.max(np.abs(kpar_m[nz] / kpar_e[nz] - 1)))

@@ -88,8 +88,10 @@ def _ps_peer(r: dict) -> list:
               f"Time ratio ps_eor / msleak {ratio:.2f}. Power ratio msleak / ps_eor: median "
               f"{img['power_ratio_median']:.3f} (16-84%: "
               f"{img['power_ratio_p16_p84'][0]:.3f}-{img['power_ratio_p16_p84'][1]:.3f}); "
-              f"k_perp axes agree to {img['k_perp_max_rel_diff']:.1e}, k_par to "
-              f"{img['k_par_max_rel_diff']:.1e} (relative)."]
+              f"k_perp bin lower edges agree to {img['k_perp_max_rel_diff']:.1e} (ps_eor labels "
+              f"bins by their lower edge), k_par to {img['k_par_max_rel_diff']:.1e} (relative; "
+              "ps_eor's delay resolution uses a bandwidth of (N-1) channels, msleak's N). The "
+              "power ratio's trend with k_perp is not explained yet."]
     return lines
 
 

@@ -15,18 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from msleak.cli import cli
-
-
-def _table(path, readonly=True):
-    import casacore.tables as pt
-
-    return pt.table(str(path), readonly=readonly, ack=False)
-
-
-def _phase_centre(ms):
-    with _table(f"{ms}/FIELD") as t:
-        ra, dec = t.getcell("PHASE_DIR", 0).reshape(-1)[:2]
-    return float(ra), float(dec)
+from ms_helpers import phase_centre as _phase_centre, table as _table
 
 
 def _sky(tmp, ms, name="sky.skymodel", flux="1.0, 0.3, 0.2, 0.0"):

@@ -13,9 +13,7 @@ import os
 import random
 import shutil
 import time
-from pathlib import Path
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 

@@ -15,63 +15,20 @@ from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.predict import engine
 from msleak.predict import predict as run_predict
-
-C = 299_792_458.0
+from ms_helpers import C
+from ms_helpers import channel_freqs as _freq
+from ms_helpers import direct_dft as _direct_dft
+from ms_helpers import phase_centre as _phase_centre
+from ms_helpers import table as _table
+from ms_helpers import write_sky as _write_sky
 
 
 # ----------------------------------------------------------------------------- helpers
-def _table(path, readonly=True):
-    import casacore.tables as pt
-
-    return pt.table(str(path), readonly=readonly, ack=False)
-
-
-def _phase_centre(ms):
-    with _table(f"{ms}/FIELD") as t:
-        ra, dec = t.getcell("PHASE_DIR", 0).reshape(-1)[:2]
-    return float(ra), float(dec)
-
-
-def _freq(ms):
-    with _table(f"{ms}/SPECTRAL_WINDOW") as t:
-        return np.asarray(t.getcell("CHAN_FREQ", 0), float)
-
-
-def _write_sky(path, sources):
-    """makesourcedb file; sources = [(ra_rad, dec_rad, I, Q, U, V), ...] (bare numbers = rad)."""
-    lines = ["format = Name, Type, Ra, Dec, I, Q, U, V"]
-    for k, (ra, dec, i, q, u, v) in enumerate(sources):
-        vals = ", ".join(repr(float(x)) for x in (ra, dec, i, q, u, v))
-        lines.append(f"s{k}, POINT, {vals}")
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
 def _offsets_to_radec(ra0, dec0, l, m):
     n = np.sqrt(1 - l * l - m * m)
     dec = np.arcsin(m * np.cos(dec0) + n * np.sin(dec0))
     ra = ra0 + np.arctan2(l, n * np.cos(dec0) - m * np.sin(dec0))
     return ra, dec
-
-
-def _direct_dft(ms, sources):
-    """Unbeamed visibilities (row, chan, 4) from UVW and frequencies, written out here:
-    V = sum_s B_s exp(+2 pi i (u l + v m + w (n - 1))), (u, v, w) = UVW / lambda with the MS
-    convention UVW = antenna2 - antenna1 (the convention DP3 uses, see test_predict_dp3)."""
-    ra0, dec0 = _phase_centre(ms)
-    freq = _freq(ms)
-    with _table(ms) as t:
-        uvw = t.getcol("UVW")
-    out = np.zeros((uvw.shape[0], freq.size, 4), complex)
-    for ra, dec, i, q, u, v in sources:
-        l = np.cos(dec) * np.sin(ra - ra0)
-        m = np.sin(dec) * np.cos(dec0) - np.cos(dec) * np.sin(dec0) * np.cos(ra - ra0)
-        n = np.sin(dec) * np.sin(dec0) + np.cos(dec) * np.cos(dec0) * np.cos(ra - ra0)
-        delay = uvw @ np.array([l, m, n - 1.0])                      # (row,) m
-        phase = np.exp(2j * np.pi * delay[:, None] * freq[None, :] / C)
-        corr = np.array([i + q, u + 1j * v, u - 1j * v, i - q])
-        out += phase[:, :, None] * corr[None, None, :]
-    return out
 
 
 def _col(ms, name):

@@ -15,24 +15,13 @@ import pytest
 from click.testing import CliRunner
 
 from msleak.cli import cli
+from ms_helpers import (direct_dft as _direct_dft, phase_centre as _phase_centre,
+                        table as _table, write_sky as _write_sky)
 
-C = 299_792_458.0
-
-
-def _table(path, readonly=True):
-    import casacore.tables as pt
-
-    return pt.table(str(path), readonly=readonly, ack=False)
 
 
 def _invoke(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def _phase_centre(ms):
-    with _table(f"{ms}/FIELD") as t:
-        ra, dec = t.getcell("PHASE_DIR", 0).reshape(-1)[:2]
-    return float(ra), float(dec)
 
 
 def _sources(ms):
@@ -45,31 +34,6 @@ def _sources(ms):
         dec = np.arcsin(dm * np.cos(dec0) + n * np.sin(dec0))
         ra = ra0 + np.arctan2(dl, n * np.cos(dec0) - dm * np.sin(dec0))
         out.append((float(ra), float(dec), *s))
-    return out
-
-
-def _write_sky(path, sources):
-    lines = ["format = Name, Type, Ra, Dec, I, Q, U, V"]
-    for k, src in enumerate(sources):
-        lines.append(f"s{k}, POINT, " + ", ".join(repr(float(x)) for x in src))
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def _direct_dft(ms, sources):
-    """V = sum_s B_s exp(+2 pi i UVW . (l, m, n - 1) nu / c), linear feeds."""
-    ra0, dec0 = _phase_centre(ms)
-    with _table(f"{ms}/SPECTRAL_WINDOW") as t:
-        freq = np.asarray(t.getcell("CHAN_FREQ", 0), float)
-    with _table(ms) as t:
-        uvw = t.getcol("UVW")
-    out = np.zeros((uvw.shape[0], freq.size, 4), complex)
-    for ra, dec, i, q, u, v in sources:
-        l = np.cos(dec) * np.sin(ra - ra0)
-        m = np.sin(dec) * np.cos(dec0) - np.cos(dec) * np.sin(dec0) * np.cos(ra - ra0)
-        n = np.sin(dec) * np.sin(dec0) + np.cos(dec) * np.cos(dec0) * np.cos(ra - ra0)
-        phase = np.exp(2j * np.pi * (uvw @ [l, m, n - 1])[:, None] * freq[None, :] / C)
-        out += phase[:, :, None] * np.array([i + q, u + 1j * v, u - 1j * v, i - q])
     return out
 
 

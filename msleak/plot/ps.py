@@ -81,7 +81,7 @@ def plot_ps2d(ps, path, stokes: Sequence[str] = ("I", "Q", "U", "P"),
                              cmap="viridis", shading="flat")
         for name, style in (("horizon", "-"), ("primary", "--")):
             if slopes[name]:
-                label = (f"horizon (90$^\\circ$)" if name == "horizon" else
+                label = ("horizon (90$^\\circ$)" if name == "horizon" else
                          f"primary ({ds.attrs.get('primary_theta_deg', 0):.1f}$^\\circ$)")
                 if slopes[name] * x_edges[-1] < y_edges[0]:
                     label += ", below axis"
