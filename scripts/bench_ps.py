@@ -9,9 +9,11 @@
 2. Image path vs ps_eor (PyPI ``ps-eor``, if importable): one K image cube (128^2 pixels of
    2 arcmin, 50 channels, a smooth-spectrum Gaussian random sky) through
    `msleak grid --image` + `transform` + `ps`, and through ps_eor's CartImageCube ->
-   CartDataCube -> PowerSpectraCart.get_ps2d with the same uv range, |b| bins, window
-   and cosmology (Planck18, no primary beam). Reported: both times, the k_perp and
-   k_par axes (ps_eor's h Mpc^-1 converted to Mpc^-1) and the ratio of the 2D powers.
+   CartDataCube -> PowerSpectraCart.get_ps2d with the same uv range, |b| annuli, delay
+   grid, (symmetric) window and cosmology (Planck18, no primary beam), ps_eor's power
+   converted from its (N-1) dnu bandwidth to msleak's N dnu (docs/ps.md "Comparison with
+   ps_eor"). Reported: both times, the k_perp and k_par axes (ps_eor's h Mpc^-1 converted
+   to Mpc^-1) and the ratio of the 2D powers.
 
 Usage: scripts/bench_ps.py [--workdir DIR | --outdir DIR] [--quick] [--json OUT.json]
                            [--skip-ms] [--skip-image]
@@ -175,36 +177,35 @@ def bench_image(work: Path, uv=(30.0, 180.0)) -> dict:
         return out
     cell = ours.attrs["cell_lambda"]
     t0 = time.perf_counter()
-    theirs = _ps_eor_ps2d(cube_path, uv, cell)
+    theirs = _ps_eor_ps2d(cube_path, uv, cell, ours["k_perp"].size)
     out["ps_eor_s"] = round(time.perf_counter() - t0, 2)
     from astropy.cosmology import Planck18
 
     h = Planck18.h
     kper_e = np.asarray(theirs["k_per"]) * h
     kpar_e = np.asarray(theirs["k_par"]) * h
-    # msleak: bin centres; ps_eor: its k_per values (compared with both below)
+    # both are now bin centres of the same annuli and the same FFT delays
     kper_m, kpar_m = ours["k_perp"].values, ours["k_par"].values[1:]  # ps_eor has no k_par=0
     out["k_perp_msleak"] = np.round(kper_m, 5).tolist()
     out["k_perp_ps_eor"] = np.round(kper_e, 5).tolist()
     out["k_par_msleak_first"] = np.round(kpar_m[:4], 5).tolist()
     out["k_par_ps_eor_first"] = np.round(kpar_e[:4], 5).tolist()
     n = min(kper_m.size, kper_e.size)
-    # ps_eor labels a k_per bin by its lower edge: compare it with msleak's lower edges
-    kper_lo = ours["k_perp_lo"].values
-    nlo = min(kper_lo.size, kper_e.size)
-    out["k_perp_max_rel_diff"] = float(np.max(np.abs(kper_lo[:nlo] / kper_e[:nlo] - 1)))
-    out["k_perp_centre_vs_ps_eor_max_rel_diff"] = float(np.max(np.abs(kper_m[:n] / kper_e[:n] - 1)))
-    out["k_perp_lo_msleak"] = np.round(kper_lo, 5).tolist()
-    m = min(kpar_m.size, kpar_e.size)
+    out["k_perp_max_rel_diff"] = float(np.max(np.abs(kper_m[:n] / kper_e[:n] - 1)))
+    m = min(kpar_m.size, kpar_e.size)  # ps_eor drops the Nyquist delay when folding
     nz = slice(0, m)
     out["k_par_max_rel_diff"] = float(np.max(np.abs(kpar_m[nz] / kpar_e[nz] - 1)))
+    nchan = theirs["nchan"]
     p_ours = ours["power"].sel(stokes="I").values[1:m + 1, :n]  # mK^2 Mpc^3
-    p_theirs = np.asarray(theirs["ps2d"])[:m, :n] * 1e6 / h ** 3  # K^2 h^-3 Mpc^3 -> mK^2 Mpc^3
+    # K^2 h^-3 Mpc^3 -> mK^2 Mpc^3, and ps_eor's bandwidth (N - 1) dnu -> msleak's N dnu
+    p_theirs = np.asarray(theirs["ps2d"])[:m, :n] * 1e6 / h ** 3 * (nchan - 1) / nchan
+    out["ps_eor_bandwidth_factor_applied"] = (nchan - 1) / nchan
     ratio = p_ours / p_theirs
     ok = np.isfinite(ratio) & (ratio > 0)
     out["power_ratio_median"] = float(np.median(ratio[ok]))
     out["power_ratio_p16_p84"] = [float(np.percentile(ratio[ok], 16)),
                                   float(np.percentile(ratio[ok], 84))]
+    out["power_ratio_min_max"] = [float(ratio[ok].min()), float(ratio[ok].max())]
     out["power_ratio_low_kpar_median"] = float(np.median(ratio[:5][ok[:5]]))
     out["power_ratio_per_kperp"] = np.round(np.nanmedian(np.where(ok, ratio, np.nan), axis=0),
                                             3).tolist()
@@ -213,18 +214,39 @@ def bench_image(work: Path, uv=(30.0, 180.0)) -> dict:
     return out
 
 
-def _ps_eor_ps2d(cube_path: Path, uv, du) -> dict:
-    """ps_eor's cylindrical PS of the same cube (K), same window, bins and cosmology."""
+def _ps_eor_ps2d(cube_path: Path, uv, du, nbin: int) -> dict:
+    """ps_eor's cylindrical PS of the same cube (K), put on msleak's conventions.
+
+    Same uv cells, cosmology and spectral window, and three settings that make the two
+    estimators compute the same voxels (docs/ps.md "Comparison with ps_eor"):
+
+    * k_perp bins: ps_eor's default bins are *centred* on its ``el`` values (edges at the
+      midpoints), so ``el = 2 pi * arange(umin, umax, du)`` is half a bin below msleak's
+      ``[umin + i du, umin + (i + 1) du]``; here ``uniform_u_bins`` with ``el`` at msleak's
+      bin centres gives the same annuli.
+    * delay grid: ps_eor uses ``M = round((nu_last - nu_first) / dnu) = N - 1`` delay modes
+      (a 2 % different k_par axis); here ``M = N``, msleak's FFT delays.
+    * window: ps_eor takes scipy's periodic window (``fftbins=True``), msleak the
+      symmetric one; here ps_eor gets the symmetric Blackman-Harris too.
+
+    The remaining difference, ps_eor's bandwidth ``(N - 1) dnu`` against msleak's
+    ``N dnu`` in the normalisation, is left in the returned power (the caller converts).
+    """
     from astropy.cosmology import Planck18
     from astropy.io import fits
     from astropy.wcs import WCS
     from ps_eor import datacube, pspec, psutil
+    from scipy.signal import get_window
+
+    class _SymmetricWindowPS(pspec.PowerSpectraCart):
+        def get_window_fct(self, data_cube):
+            return get_window(self.config.window_fct, len(data_cube.freqs), fftbins=False)[:, None]
 
     psutil.set_cosmology(Planck18)
     with fits.open(cube_path) as hdul:
         data = hdul[0].data.astype(float)
         wcs = WCS(hdul[0].header)
-    freqs = hdul[0].header["CRVAL3"] + hdul[0].header["CDELT3"] * np.arange(data.shape[0])
+        freqs = hdul[0].header["CRVAL3"] + hdul[0].header["CDELT3"] * np.arange(data.shape[0])
     meta = datacube.ImageMetaData(wcs, data.shape[1:])
     img = datacube.CartImageCube(data, freqs, meta)
     cube = img.ft(uv[0], uv[1])
@@ -234,10 +256,12 @@ def _ps_eor_ps2d(cube_path: Path, uv, du) -> dict:
     config.set("du", du)
     config.set("primary_beam", "no_pb")
     config.set("weights_by_default", False)
-    config.el = 2 * np.pi * np.arange(uv[0], uv[1] + 1e-9, du)
-    gen = pspec.PowerSpectraBuilder(config).get(cube)
+    config.set("uniform_u_bins", True)
+    config.el = 2 * np.pi * (uv[0] + du * (np.arange(nbin) + 0.5))
+    eor = pspec.EorBin(0, freqs, freqs, M=freqs.size)
+    gen = _SymmetricWindowPS(eor, config, datacube.PrimaryBeam.from_name("no_pb"))
     ps2d = gen.get_ps2d(cube)
-    return {"k_per": ps2d.k_per, "k_par": ps2d.k_par, "ps2d": ps2d.data}
+    return {"k_per": ps2d.k_per, "k_par": ps2d.k_par, "ps2d": ps2d.data, "nchan": freqs.size}
 
 
 def main() -> None:

@@ -112,9 +112,12 @@ def test_predict_many_interrupted_resumes(make_ms, sky):
     with pt.table(str(a), ack=False) as t:
         n_a = t.nrows()
     with pytest.raises(RuntimeError, match="simulated"):
-        # chunks of one slot: 4 in a, then fail after the second of b
-        engine.predict_many([a, b], sky, scheduler="threads", workers=2,
-                            memory_limit=60_000, progress=False, _fail_after_chunks=6)
+        # chunks of one slot: 4 in a, then fail after the second of b (sync, so the failure
+        # point does not depend on which thread finishes first on a loaded machine)
+        # (sync gets the whole budget for one task: half of it gives the one-slot chunks
+        # that threads with two workers make)
+        engine.predict_many([a, b], sky, scheduler="sync", workers=1,
+                            memory_limit=30_000, progress=False, _fail_after_chunks=6)
     got_a, state_a = _column(a)
     got_b, state_b = _column(b)
     assert state_a["complete"] and state_a["rows_done"] == n_a

@@ -36,8 +36,8 @@ log = logging.getLogger(__name__)
               help="DATA_DESC_ID (spectral window) of the rows used.")
 @click.option("--beam-area", "beam_area_sr", type=float, default=None, metavar="SR",
               help="Primary-beam area Omega = int (A R)^2 dOmega (sr) for the mK^2 Mpc^3 "
-              "normalisation. Default: an Airy beam of a cell-wide station times the "
-              "gridder's response R (docs/grid.md).")
+              "normalisation. Default: the station power beam A of --beam-area-model times "
+              "the gridder's response R (docs/grid.md).")
 @click.option("--image", "images", multiple=True, type=click.Path(),
               help="FITS image cube(s) instead of an MS (repeat for several Stokes).")
 @click.option("--stokes", "stokes", default=None, metavar="S[,S...]",
@@ -64,10 +64,15 @@ log = logging.getLogger(__name__)
               help="Threads of the wgrid gridder per chunk (parallelism comes from the "
               "chunks, --workers). The cube depends on it at the --epsilon level: ducc0 "
               "chooses its kernel by thread count.")
+@click.option("--beam-area-model", type=click.Choice(["auto", "everybeam", "dipole", "airy"]),
+              default="auto", show_default=True,
+              help="Station beam for Omega when --beam-area is not given: the MS's own beam "
+              "model (auto: everybeam with LOFAR tables, else dipole), or an Airy disc of a "
+              "cell-wide station.")
 @parallel_options
 def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, beam_area_sr,
          images, stokes, fov_deg, beam_fwhm_deg, taper, chunk_rows, memory_limit, epsilon,
-         threads, scheduler, workers):
+         threads, beam_area_model, scheduler, workers):
     """Grid Stokes I, Q, U, V (and P = Q + iU) visibilities of MS, channel by channel, on
     square uv cells with natural weighting, both Hermitian halves. Flags (FLAG, FLAG_ROW)
     and weights (WEIGHT_SPECTRUM or WEIGHT) are honoured; autocorrelations are skipped.
@@ -105,7 +110,8 @@ def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, bea
                      gridder=gridder, split=split, field_id=field_id, ddid=ddid,
                      chunk_rows=chunk_rows, epsilon=epsilon, nthreads=threads,
                      beam_area_sr=beam_area_sr, taper=taper, progress=sys.stderr.isatty(),
-                     scheduler=scheduler, workers=workers, memory_limit=memory_limit)
+                     scheduler=scheduler, workers=workers, memory_limit=memory_limit,
+                     beam_area_model=beam_area_model)
         if ds.attrs.get("n_gap_channels"):
             click.echo(f"warning: {ds.attrs['n_gap_channels']} channel(s) missing between the "
                        f"Measurement Sets ({ds.attrs['freq_gaps']}) are left empty", err=True)

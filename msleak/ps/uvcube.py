@@ -322,13 +322,39 @@ def _rows_for_memory(budget: float, nchan: int, spec: _Spec) -> int:
     return rows
 
 
+def _beam_area_from_ms(ms, given, model: str, gridder: str, taper: str, cell: float,
+                       freq_hz: float) -> dict:
+    """Omega from the MS's beam model, unless it was given or the Airy model is asked."""
+    if given or model == "airy":
+        return {}
+    from msleak.errors import MsleakError
+    from msleak.io import ms as msio
+    from msleak.ps.beam_area import ms_beam_area
+
+    tries = ["everybeam", "dipole"] if model == "auto" else [model]
+    for name in tries:
+        if model == "auto" and name == "everybeam" and not msio.has_lofar_tables(ms):
+            continue
+        try:
+            omega, how = ms_beam_area(ms, model=name, gridder=gridder, taper=taper, cell=cell,
+                                      freq_hz=freq_hz)
+            return {"beam_area_sr": omega, "beam_area_source": how}
+        except MsleakError as err:
+            if model != "auto":
+                raise
+            log.warning("beam area: the %s beam of %s is not usable (%s); trying the next "
+                        "model", name, ms, err)
+    return {}   # auto and no model of the MS usable: the Airy model (already recorded)
+
+
 def grid_ms(ms: str | os.PathLike | Sequence[str | os.PathLike], *, column: str = "DATA",
             cell: float = 16.0, uv_range: tuple[float, float] = (30.0, 180.0),
             gridder: str = "wgrid", split: Split | None = None, field_id: int = 0,
             ddid: int = 0, chunk_rows: int | None = None, epsilon: float = 1e-6,
             nthreads: int | None = 1, beam_area_sr: float | None = None,
             taper: str = DEFAULT_TAPER, progress: bool = False, scheduler="sync",
-            workers: int | None = None, memory_limit: float | None = None) -> xr.Dataset:
+            workers: int | None = None, memory_limit: float | None = None,
+            beam_area_model: str = "auto") -> xr.Dataset:
     """Grid one column of one or several Measurement Sets into a uvcube Dataset.
 
     Parameters
@@ -365,6 +391,11 @@ def grid_ms(ms: str | os.PathLike | Sequence[str | os.PathLike], *, column: str 
         Primary-beam area Omega (sr) recorded for the mK^2 Mpc^3 normalisation; default
         ``int A^2 R^2 dOmega`` with A the Airy power beam of a cell-wide station and R
         the gridder's response (:func:`~msleak.ps.gridding.response_attrs`).
+    beam_area_model : {'auto', 'everybeam', 'dipole', 'airy'}
+        How Omega is made when ``beam_area_sr`` is not given: from the beam model of the
+        (first) MS (:func:`msleak.ps.beam_area.ms_beam_area`; ``auto`` is everybeam for an
+        MS with the LOFAR tables, else dipole), or ``airy`` (an Airy disc of a cell-wide
+        station, :func:`msleak.ps.gridding.beam_area_model`).
     taper : {'cos2', 'hann'}
         uv kernel of the ``wgrid`` gridder: ``cos2`` (one cell wide, response wider than
         the station beam) or the legacy ``hann`` (~1.3 deg field); see
@@ -517,6 +548,8 @@ def grid_ms(ms: str | os.PathLike | Sequence[str | os.PathLike], *, column: str 
         **seen,
         "beam_area_sr": float(beam_area_sr) if beam_area_sr else seen["beam_area_sr"],
         "beam_area_source": "given" if beam_area_sr else seen["beam_area_source"],
+        **_beam_area_from_ms(names[0], beam_area_sr, beam_area_model, gridder, taper,
+                             grid.cell, float(freq[freq.size // 2])),
         "split": split or "", "n_samples_gridded": stats["in_range"],
         "n_inputs": len(inputs), "freq_gaps": layout.gap_text(),
         "n_gap_channels": layout.n_gap_channels,
