@@ -103,6 +103,24 @@ def plot_ps2d(ps, path, stokes: Sequence[str] = ("I", "Q", "U", "P"),
     return save_figure(fig, path, pdf=pdf)
 
 
+def _plot_spectra(ax, inputs, variable: str, coord: str, stokes, styles, positive_k: bool):
+    """One line per (input, Stokes) of ``variable`` against ``coord``; colour per input,
+    line style per Stokes. Returns the units and the last dataset plotted."""
+    units, ds = "", None
+    for i, item in enumerate(inputs):
+        ps, label = item if isinstance(item, tuple) else (item, None)
+        ds = _open(ps)
+        label = label or Path(str(ds.attrs.get("source", f"input {i}"))).name
+        units = ds[variable].attrs.get("units", units)
+        k = ds[coord].values
+        for j, s in enumerate(stokes):
+            y = ds[variable].sel(stokes=s).values
+            ok = np.isfinite(y) & (y > 0) & ((k > 0) if positive_k else True)
+            ax.plot(k[ok], y[ok], styles[j % len(styles)], color=f"C{i}", marker="o", ms=3,
+                    label=f"{label}: {s}")
+    return units, ds
+
+
 def plot_ps1d(inputs, path, stokes: Sequence[str] = ("Q", "U"), pdf: bool = False,
               title: str | None = None) -> Path:
     """1D PS versus k_par of several inputs on one axis.
@@ -110,20 +128,9 @@ def plot_ps1d(inputs, path, stokes: Sequence[str] = ("Q", "U"), pdf: bool = Fals
     ``inputs``: a sequence of ps products/paths or ``(ps, label)`` pairs.
     """
     fig, ax = new_figure(figsize=(6, 4.2), constrained_layout=True)
-    units = ""
-    styles = ["-", "--", ":", "-."]
-    for i, item in enumerate(inputs):
-        ps, label = item if isinstance(item, tuple) else (item, None)
-        ds = _open(ps)
-        label = label or Path(str(ds.attrs.get("source", f"input {i}"))).name
-        units = ds["power_1d"].attrs.get("units", units)
-        kpar = ds["k_par"].values
-        for j, s in enumerate(stokes):
-            y = ds["power_1d"].sel(stokes=s).values
-            ok = (kpar > 0) & np.isfinite(y) & (y > 0)
-            ax.plot(kpar[ok], y[ok], styles[j % len(styles)], color=f"C{i}", marker="o", ms=3,
-                    label=f"{label}: {s}")
-        kp = (ds.attrs.get("k_perp_min_1d"), ds.attrs.get("k_perp_max_1d"))
+    units, ds = _plot_spectra(ax, inputs, "power_1d", "k_par", stokes,
+                              ["-", "--", ":", "-."], positive_k=True)
+    kp = (ds.attrs.get("k_perp_min_1d"), ds.attrs.get("k_perp_max_1d"))
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel(r"$k_\parallel$ [Mpc$^{-1}$]")
@@ -139,18 +146,8 @@ def plot_ps_sph(inputs, path, stokes: Sequence[str] = ("I",), pdf: bool = False,
                 title: str | None = None) -> Path:
     """Spherically averaged PS of several inputs on one axis."""
     fig, ax = new_figure(figsize=(6, 4.2), constrained_layout=True)
-    units = ""
-    for i, item in enumerate(inputs):
-        ps, label = item if isinstance(item, tuple) else (item, None)
-        ds = _open(ps)
-        label = label or Path(str(ds.attrs.get("source", f"input {i}"))).name
-        units = ds["power_sph"].attrs.get("units", units)
-        k = ds["k"].values
-        for j, s in enumerate(stokes):
-            y = ds["power_sph"].sel(stokes=s).values
-            ok = np.isfinite(y) & (y > 0)
-            ax.plot(k[ok], y[ok], ["-", "--", ":"][j % 3], color=f"C{i}", marker="o", ms=3,
-                    label=f"{label}: {s}")
+    units, _ = _plot_spectra(ax, inputs, "power_sph", "k", stokes, ["-", "--", ":"],
+                             positive_k=False)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel(r"$k$ [Mpc$^{-1}$]")

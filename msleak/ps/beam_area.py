@@ -21,7 +21,8 @@ __all__ = ["beam_area_from_power", "ms_beam_area", "BEAM_AREA_MODELS"]
 log = logging.getLogger(__name__)
 
 #: ``--beam-area-model`` choices: auto (everybeam when the MS has the LOFAR tables, else
-#: dipole), a beam model of msleak.beam, or the analytic Airy disc of a cell-wide station
+#: dipole; chosen by msleak.ps.uvcube), a beam model of msleak.beam, or the analytic Airy
+#: disc of a cell-wide station (msleak.ps.gridding.beam_area_model)
 BEAM_AREA_MODELS = ("auto", "everybeam", "dipole", "airy")
 
 
@@ -45,13 +46,10 @@ def ms_beam_area(ms: str | Path, *, model: str, gridder: str, taper: str, cell: 
     from msleak.beam import load_beam
     from msleak.beam.maps import sin_grid
     from msleak.io import ms as msio
-    from msleak.io.ms import has_lofar_tables
     from msleak.ps.gridding import gridder_response
 
-    if model not in BEAM_AREA_MODELS or model == "airy":
+    if model not in ("everybeam", "dipole"):
         raise InputError(f"beam-area model {model!r} is not one read from the MS")
-    if model == "auto":
-        model = "everybeam" if has_lofar_tables(ms) else "dipole"
     field = msio.read_fields(ms)[0]
     times = msio.read_times(ms)
     if times.size == 0:
