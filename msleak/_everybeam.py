@@ -8,6 +8,10 @@ Two facts about the PyPI wheels (documented in the README):
 * everybeam bundles a casacore without measures data; importing python-casacore first makes
   its data tables (leap seconds, observatories) available, otherwise EveryBeam fails with
   "Cannot read leap second table".
+
+Which telescopes the wheel's ``load_telescope`` accepts (:func:`everybeam_telescope`) and
+where its MWA beam finds the MWA FEE coefficients (:data:`MWA_BEAM_FILE_VARIABLE`) are
+stated here too, so msleak can refuse an MS before EveryBeam prints or raises anything.
 """
 
 from __future__ import annotations
@@ -18,7 +22,28 @@ from pathlib import Path
 
 from msleak.errors import ConfigurationError
 
-__all__ = ["import_everybeam", "everybeam_datadir"]
+__all__ = ["import_everybeam", "everybeam_datadir", "everybeam_telescope",
+           "EVERYBEAM_TELESCOPES", "MWA_BEAM_FILE_VARIABLE", "MWA_BEAM_FILE_NAME"]
+
+#: TELESCOPE_NAME (compared in upper case, as EveryBeam does) -> the EveryBeam telescope the
+#: everybeam 0.9.0 Python bindings load for it; names starting with "OSKAR" load OSKAR too.
+#: EveryBeam's C++ library knows more (VLA as EVLA*, ATCA*, GMRT, MEERKAT, ALMA, DSA_110,
+#: OVRO_LWA, ...), but its ``load_telescope`` refuses them.
+EVERYBEAM_TELESCOPES = {"LOFAR": "LOFAR", "AARTFAAC": "AARTFAAC", "MWA": "MWA",
+                        "SKA-LOW": "OSKAR", "MID": "SKA-Mid"}
+
+#: EveryBeam's MWA beam reads no environment variable for its coefficients file (it must be
+#: passed as ``coeff_path``); msleak takes it from the variable mwa_hyperbeam also reads.
+MWA_BEAM_FILE_VARIABLE = "MWA_BEAM_FILE"
+MWA_BEAM_FILE_NAME = "mwa_full_embedded_element_pattern.h5"
+
+
+def everybeam_telescope(telescope_name: str) -> str | None:
+    """The EveryBeam telescope ``load_telescope`` makes for an MS's TELESCOPE_NAME, or None."""
+    name = str(telescope_name).upper()
+    if name.startswith("OSKAR"):
+        return "OSKAR"
+    return EVERYBEAM_TELESCOPES.get(name)
 
 
 def everybeam_datadir() -> Path:

@@ -28,26 +28,53 @@ def test_identity_jones_gives_identity_mueller():
     assert polarized_beam(m) == pytest.approx(np.sqrt(2))
 
 
-def test_ideal_circular_feeds_give_identity():
-    # R, L from the (North, East) field: the matrix that makes the circular correlations of
-    # msleak.conventions (RR = I + V, RL = Q + iU) out of the linear sky brightness
+@pytest.mark.parametrize("feed", ["linear", "circular"])
+def test_identity_jones_gives_identity_mueller_for_both_feeds(feed):
+    """An ideal (centre-corrected) beam changes no Stokes parameter, whatever the feeds."""
+    m = jones_to_mueller(np.eye(2, dtype=complex), feed=feed)
+    np.testing.assert_allclose(m, np.eye(4), atol=1e-15)
+    assert polarized_beam(m) == pytest.approx(np.sqrt(2), abs=1e-15)
+    assert leakage(m) == pytest.approx(0, abs=1e-15)
+
+
+def test_ideal_circular_feeds_see_the_circular_convention():
+    # R, L = (X + iY)/sqrt 2, (X - iY)/sqrt 2 of the (North, East) field: the circular
+    # correlations of msleak.conventions (RR = I + V, RL = Q + iU)
     c = np.array([[1, 1j], [1, -1j]]) / np.sqrt(2)
     iquv = np.array([1.0, 0.2, -0.3, 0.1])
     corr = (c @ _brightness(iquv) @ c.conj().T).reshape(4)
     np.testing.assert_allclose(correlations_to_stokes(corr, "circular"), iquv, atol=1e-14)
-    np.testing.assert_allclose(jones_to_mueller(c, feed="circular"), np.eye(4), atol=1e-15)
+    np.testing.assert_allclose(corr, [1.1, 0.2 - 0.3j, 0.2 + 0.3j, 0.9], atol=1e-15)
+
+
+def _feed_correlations(jp, jq, iquv, feed):
+    """Correlations (4,) of sky Stokes iquv through (X, Y) Jones matrices jp, jq, in the
+    feeds' own basis, with 2x2 matrices."""
+    c = np.eye(2) if feed == "linear" else np.array([[1, 1j], [1, -1j]]) / np.sqrt(2)
+    return (c @ jp @ _brightness(iquv) @ jq.conj().T @ c.conj().T).reshape(4)
 
 
 @pytest.mark.parametrize("feed", ["linear", "circular"])
 def test_mueller_reproduces_the_measurement_equation(feed):
-    """M @ (I,Q,U,V) equals the Stokes of J_p B J_q^H computed with 2x2 matrices."""
+    """M @ (I,Q,U,V) equals the Stokes of C J_p B J_q^H C^H computed with 2x2 matrices."""
     jp, jq = _random_jones(5), _random_jones(5)
     iquv = RNG.normal(size=(5, 4))
     m = jones_to_mueller(jp, jq, feed=feed)
     for k in range(5):
-        corr = (jp[k] @ _brightness(iquv[k]) @ jq[k].conj().T).reshape(4)
+        corr = _feed_correlations(jp[k], jq[k], iquv[k], feed)
         expected = np.linalg.solve(stokes_to_correlations_matrix(feed), corr)
         np.testing.assert_allclose(m[k] @ iquv[k], expected, rtol=1e-12, atol=1e-12)
+
+
+def test_stokes_mueller_does_not_depend_on_the_feeds():
+    """The same physical beam (random Jones pair) leaks the same way into the Stokes
+    parameters formed from linear or from circular correlations."""
+    jp, jq = _random_jones(20), _random_jones(20)
+    lin = jones_to_mueller(jp, jq, feed="linear")
+    circ = jones_to_mueller(jp, jq, feed="circular")
+    np.testing.assert_allclose(circ, lin, rtol=0, atol=1e-12 * np.abs(lin).max())
+    auto = jones_to_mueller(jp, feed="circular")
+    np.testing.assert_allclose(leakage(auto), leakage(jones_to_mueller(jp)), rtol=1e-12)
 
 
 def test_auto_correlation_mueller_is_real():

@@ -5,6 +5,7 @@ import pytest
 
 from msleak.errors import InputError
 from msleak.leakage import analyse, fit_pareto, leakage_statistics
+from msleak.leakage.analysis import voxel_groups
 from msleak.leakage.bootstrap import (_weighted_order_median, _weighted_pareto_median,
                                      bootstrap_errors, cell_groups)
 from msleak.leakage.expected import (correlation_factors, sample_error,
@@ -98,6 +99,30 @@ def test_delay_correlated_voxels_through_analyse():
     scatter = np.std(fits, ddof=1)
     assert np.mean(errs) == pytest.approx(scatter, rel=0.3)
     assert np.mean(iid) < 0.7 * scatter
+
+
+def test_voxel_and_its_mirror_are_drawn_together():
+    """The mirror voxel (-u, -tau) shares its cell's group. If the mirrors duplicate their
+    cells' voxels exactly, every statistic and bootstrap error (same seed) equals that of
+    the cells' voxels alone; drawing the two voxels of a pair apart would shrink the
+    errors by about sqrt(2), as if the duplicates were independent."""
+    rng = np.random.default_rng(12)
+    shape = (30, 150)
+    v_i, v_p = gaussian_voxels(shape, 0.03, rng), gaussian_voxels(shape, 1.0, rng)
+    ds = make_ps_dataset(v_i, v_p)                       # mirror power = cell's P power
+    groups = voxel_groups(ds, block=1).reshape((2,) + shape)
+    assert (groups[0] == groups[1]).all()
+    res = analyse([ds], ["x"], ["x.h5"], bootstrap_block=1, seed=5)
+    L_half = 100 * np.abs(v_i) / np.abs(v_p)
+    cells = np.broadcast_to(np.arange(shape[1]), shape).ravel()
+    st = leakage_statistics(L_half.ravel(), groups=cells, n_boot=200, seed=5)
+    assert int(res["n_voxels"].values[0]) == 2 * L_half.size
+    for name in ("median", "pareto_median", "mean", "median_err", "pareto_median_err",
+                 "mean_err"):
+        assert float(res[name].values[0]) == pytest.approx(getattr(st, name), rel=1e-8), name
+    L2 = np.concatenate([L_half.ravel()] * 2)
+    apart = bootstrap_errors(L2, np.concatenate([cells, cells + shape[1]]), 200, seed=5)
+    assert apart.median < 0.85 * st.median_err
 
 
 def test_cell_groups_blocks():

@@ -55,7 +55,8 @@ def test_three_fields_of_view(products, tmp_path):
         assert row["label"] == label
         for col in ("mean", "median", "pareto_median"):
             assert float(row[col]) == pytest.approx(100 * eps, rel=1e-5)
-        assert int(row["n_voxels"]) == SHAPE[0] * SHAPE[1] and int(row["n_masked"]) == 0
+        # two voxels, (u, tau) and (-u, -tau), per cell and delay
+        assert int(row["n_voxels"]) == 2 * SHAPE[0] * SHAPE[1] and int(row["n_masked"]) == 0
     field = np.mean([100 * e for e in EPS.values()])
     md = (out / "stats.md").read_text()
     assert "| 9deg |" in md and f"**{field:.4g} %**" in md
@@ -101,11 +102,12 @@ def test_zero_polarized_power_masked_counted_reported(tmp_path):
                                                           power3d_p=p_p))
     r = run(path, "-o", tmp_path / "o", "--no-figures")
     assert r.exit_code == 0, r.output + r.stderr
-    assert "masked 100 of 1200 voxels (nonpositive_pp: 100)" in r.stderr
+    # 100 cell-delays with zero P power in both voxels (u, tau) and (-u, -tau)
+    assert "masked 200 of 2400 voxels (nonpositive_pp: 200)" in r.stderr
     row = next(csv.DictReader(open(tmp_path / "o" / "stats.csv")))
-    assert int(row["n_masked"]) == 100 and int(row["n_voxels"]) == 1100
+    assert int(row["n_masked"]) == 200 and int(row["n_voxels"]) == 2200
     assert float(row["median"]) == pytest.approx(5.0, rel=1e-9)
-    assert "100 |" in (tmp_path / "o" / "stats.md").read_text()
+    assert "200 |" in (tmp_path / "o" / "stats.md").read_text()
 
 
 @pytest.mark.parametrize("drop", ["I", "P"])
@@ -116,6 +118,20 @@ def test_missing_stokes_exit_2(tmp_path, drop):
     r = run(path, "-o", tmp_path / "o")
     assert r.exit_code == 2
     assert f"no Stokes {drop}" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_product_without_mirror_voxels_exit_2(tmp_path):
+    """A PS product without power3d_P_mirror has only half of the P voxels: refused for
+    voxel statistics with the two remedies, accepted with --stats-from bins."""
+    rng = np.random.default_rng(33)
+    v = gaussian_voxels(SHAPE, 1.0, rng)
+    path = write_ps(tmp_path / "half.h5", make_ps_dataset(0.1 * v, v, with_mirror=False))
+    r = run(path, "-o", tmp_path / "o", "--no-figures")
+    assert r.exit_code == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert ("no 'power3d_P_mirror'" in r.stderr and "rerun `msleak ps`" in r.stderr
+            and "--stats-from bins" in r.stderr)
+    r = run(path, "-o", tmp_path / "o", "--no-figures", "--stats-from", "bins")
+    assert r.exit_code == 0, r.output + r.stderr
 
 
 def test_all_polarized_power_zero_exit_2(tmp_path):

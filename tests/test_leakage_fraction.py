@@ -20,7 +20,7 @@ def eps_ps():
 def test_exact_leakage_every_voxel_and_bin(eps_ps):
     ds, L_true = eps_ps
     vox = leakage_voxels(ds)
-    assert vox.L.size == 20 * 60 and vox.n_masked == 0
+    assert vox.L.size == 2 * 20 * 60 and vox.n_masked == 0  # (u, tau) and (-u, -tau)
     np.testing.assert_allclose(vox.L, L_true, rtol=1e-12)
     m = leakage_map(ds)
     assert (m["mask"] == 0).all()
@@ -65,15 +65,16 @@ def test_zero_polarized_power_voxels_masked_counted():
     p_p[3, :] = 0.0          # 60 voxels of zero polarized power
     p_i[3, :] = 0.0
     p_p[5, :7] = -1.0        # 7 negative cross-power voxels
+    # the mirrored voxels (-u, -tau) take the same P power: 2 x 67 masked
     ds = make_ps_dataset(v_i, v_p, power3d_i=p_i, power3d_p=p_p)
     vox = leakage_voxels(ds)
-    assert vox.masked == {"nonpositive_pp": 67}
-    assert vox.L.size == 20 * 60 - 67
+    assert vox.masked == {"nonpositive_pp": 134}
+    assert vox.L.size == 2 * 20 * 60 - 134
     np.testing.assert_allclose(vox.L, 10.0, rtol=1e-12)
     res = analyse([ds], ["x"], ["x.h5"])
-    assert int(res["n_masked"].values[0]) == 67
+    assert int(res["n_masked"].values[0]) == 134
     reasons = dict(zip(res["mask_reason"].values, res["n_masked_by_reason"].values[0]))
-    assert reasons["nonpositive_pp"] == 67
+    assert reasons["nonpositive_pp"] == 134
     for name in res.data_vars:
         if np.issubdtype(res[name].dtype, np.floating):
             assert np.isfinite(res[name].values).all(), name
@@ -85,7 +86,7 @@ def test_k_selection_of_voxels(eps_ps):
     sel = leakage_voxels(ds, k_par_range=(0.1, 10.0), k_perp_range=(0.0, 0.11))
     kpar = np.abs(ds["k_par3d"].values)[:, None]
     kperp = ds["k_perp_cell"].values[None, :]
-    expected = ((kpar >= 0.1) & (kperp <= 0.11)).sum()
+    expected = 2 * ((kpar >= 0.1) & (kperp <= 0.11)).sum()   # a voxel and its mirror
     assert sel.n_selected == expected < all_vox.n_selected
     with pytest.raises(InputError, match="no voxel inside"):
         leakage_voxels(ds, k_par_range=(50.0, 60.0))
@@ -108,6 +109,9 @@ def test_no_power3d_needs_bins():
     ds = make_ps_dataset(0.1 * v, v, with_power3d=False)
     with pytest.raises(InputError, match="stats-from bins"):
         leakage_voxels(ds)
+    no_mirror = make_ps_dataset(0.1 * v, v, with_mirror=False)
+    with pytest.raises(InputError, match="no 'power3d_P_mirror'.*stats-from bins"):
+        leakage_voxels(no_mirror)
     vox = leakage_voxels(ds, source="bins")
     np.testing.assert_allclose(vox.L, 10.0, rtol=1e-12)
     assert vox.source == "bins"

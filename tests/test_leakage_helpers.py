@@ -1,9 +1,10 @@
 """Synthetic PS products (docs/products.md "ps") for the leakage tests, and their checks.
 
 ``make_ps`` builds a self-consistent product from per-voxel complex Stokes I and P
-amplitudes: ``power3d`` = |V|^2 of every voxel, and the 2D ``power`` is the plain
-average of the voxels in each (|k_par|, k_perp) bin, computed here independently of
-msleak.
+amplitudes: ``power3d`` = |V|^2 of every voxel (u, tau), ``power3d_P_mirror`` = |P~|^2
+of its mirror (-u, -tau), and the 2D ``power`` is the plain average of the voxels in
+each (|k_par|, k_perp) bin (for P: of both voxels of each pair), computed here
+independently of msleak.
 """
 
 from __future__ import annotations
@@ -48,26 +49,31 @@ def cylindrical(p3d: np.ndarray, k_par3d, k_perp_cell, edges):
 def make_ps_dataset(v_i: np.ndarray, v_p: np.ndarray, k_par3d=None, k_perp_cell=None,
                     edges=None, units: str = "mK^2 Mpc^3", power3d_i=None, power3d_p=None,
                     drop_stokes: str | None = None, with_power3d: bool = True,
-                    nk: int = 8) -> xr.Dataset:
+                    nk: int = 8, v_p_mirror=None, with_mirror: bool = True) -> xr.Dataset:
     """A PS product dataset from complex voxel amplitudes (delay3d, cell) of I and P.
 
-    ``power3d_i``/``power3d_p`` override |v|^2 (e.g. to inject zeros or negatives).
-    ``drop_stokes`` removes one Stokes label (bad-input tests).
+    ``v_p_mirror``: P amplitudes of the mirrored voxels (-u, -tau) (default ``v_p``:
+    equal power in both). ``power3d_i``/``power3d_p`` override |v|^2 (e.g. to inject
+    zeros or negatives; the mirror then takes the same override unless ``v_p_mirror``
+    is given). ``drop_stokes`` removes one Stokes label (bad-input tests).
     """
     ndelay, ncell = v_i.shape
     if k_par3d is None:
         k_par3d, k_perp_cell, edges = geometry(ndelay, ncell)
     p_i = np.abs(v_i) ** 2 if power3d_i is None else power3d_i
     p_p = np.abs(v_p) ** 2 if power3d_p is None else power3d_p
-    p3d = np.stack([p_i, 0.5 * p_p, 0.5 * p_p, np.zeros_like(p_i), p_p])
-    power, counts, k_par = cylindrical(p3d, k_par3d, k_perp_cell, edges)
+    p_m = p_p if v_p_mirror is None else np.abs(v_p_mirror) ** 2
+    pair = 0.5 * (p_p + p_m)
+    p3d = np.stack([p_i, 0.5 * pair, 0.5 * pair, np.zeros_like(p_i), p_p])
+    binned = np.stack([p_i, 0.5 * pair, 0.5 * pair, np.zeros_like(p_i), pair])
+    power, counts, k_par = cylindrical(binned, k_par3d, k_perp_cell, edges)
     k_perp = 0.5 * (edges[1:] + edges[:-1])
     kk = np.hypot(k_par3d[:, None], k_perp_cell[None, :])
     k_edges = np.linspace(0, kk.max() * 1.001, nk + 1)
     ik = np.digitize(kk, k_edges) - 1
     counts_sph = np.bincount(ik.ravel(), minlength=nk).astype(float)
     power_sph = np.array([np.bincount(ik.ravel(), weights=p.ravel(), minlength=nk)
-                          for p in p3d]) / np.maximum(counts_sph, 1)
+                          for p in binned]) / np.maximum(counts_sph, 1)
     stokes = list(STOKES)
     ds = xr.Dataset(
         {
@@ -88,6 +94,8 @@ def make_ps_dataset(v_i: np.ndarray, v_p: np.ndarray, k_par3d=None, k_perp_cell=
     )
     if with_power3d:
         ds["power3d"] = (("stokes", "delay3d", "cell"), p3d, {"units": units})
+        if with_mirror:
+            ds["power3d_P_mirror"] = (("delay3d", "cell"), p_m, {"units": units})
         ds = ds.assign_coords(k_par3d=("delay3d", k_par3d),
                               k_perp_cell=("cell", k_perp_cell),
                               u_cell=("cell", k_perp_cell * 100.0),

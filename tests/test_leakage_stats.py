@@ -95,10 +95,11 @@ def test_gaussian_voxels_statistics():
 
 def test_gaussian_voxels_through_ps_product():
     rng = np.random.default_rng(22)
-    shape = (100, 1000)  # 10^5 voxels
-    ds = make_ps_dataset(gaussian_voxels(shape, 0.3, rng), gaussian_voxels(shape, 10.0, rng))
+    shape = (100, 1000)  # 10^5 cells x delays, two P voxels each
+    ds = make_ps_dataset(gaussian_voxels(shape, 0.3, rng), gaussian_voxels(shape, 10.0, rng),
+                         v_p_mirror=gaussian_voxels(shape, 10.0, rng))
     res = analyse([ds], ["fov"], ["fov.h5"])
-    assert int(res["n_voxels"].values[0]) == 100_000
+    assert int(res["n_voxels"].values[0]) == 200_000
     assert float(res["pareto_median"].values[0]) == pytest.approx(3.0, rel=0.02)
     assert float(res["median"].values[0]) == pytest.approx(3.0, rel=0.02)
     assert float(res["mean"].values[0]) > float(res["median"].values[0])

@@ -264,7 +264,7 @@ def test_memory_budget_is_shared_and_bounds_chunks():
         assert runner.workers == 1 and runner.memory_per_task == pytest.approx(8e8)
     from msleak.ps.gridding import DEFAULT_TAPER
 
-    spec = _Spec("DATA", "wgrid", make_grid(16.0, 180.0), 30.0, 180.0, 1e-6, 1, DEFAULT_TAPER,
+    spec = _Spec(("DATA",), "wgrid", make_grid(16.0, 180.0), 30.0, 180.0, 1e-6, 1, DEFAULT_TAPER,
                  None, None)
     nchan = 50
     # what a task holds: its partial grid (measured on a real accumulator after gridding

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from msleak.conventions import stokes_to_correlations_matrix
-from msleak.errors import InputError
 from msleak.predict import kernels as K
 from msleak.predict.engine import plan_chunks
 from msleak.predict.sky import prepare_sources
@@ -147,7 +146,7 @@ def test_lmn_minus_one_small_offsets_exact():
     assert lmn1[0].tolist() == [0.0, 0.0, 0.0]
 
 
-def test_station_coordinates_fit_and_refuse_inconsistent_uvw():
+def test_station_coordinates_fit_and_report_inconsistent_uvw():
     rng = np.random.default_rng(6)
     x = rng.normal(0, 500, (2, 5, 3))
     t, p, q = np.meshgrid(np.arange(2), np.arange(5), np.arange(5), indexing="ij")
@@ -155,12 +154,16 @@ def test_station_coordinates_fit_and_refuse_inconsistent_uvw():
     keep = p <= q
     t, p, q = t[keep], p[keep], q[keep]
     uvw = x[t, q] - x[t, p]
-    fit = station_coordinates(t, p, q, uvw, 2, 5)
+    fit, off = station_coordinates(t, p, q, uvw, 2, 5, tolerance_m=1e-4)
     np.testing.assert_allclose(fit[t, q] - fit[t, p], uvw, atol=1e-8)
+    assert not off.any()
+    # one cross-correlation 0.5 m off: only that row is reported, the others still fit
     bad = uvw.copy()
-    bad[3] += 0.5
-    with pytest.raises(InputError, match="not antenna-based"):
-        station_coordinates(t, p, q, bad, 2, 5)
+    row = int(np.flatnonzero(p != q)[3])
+    bad[row] += 0.5
+    fit, off = station_coordinates(t, p, q, bad, 2, 5, tolerance_m=1e-4)
+    assert np.flatnonzero(off).tolist() == [row]
+    np.testing.assert_allclose((fit[t, q] - fit[t, p])[~off], uvw[~off], atol=1e-8)
 
 
 def test_station_coordinates_disconnected_groups():
@@ -169,8 +172,9 @@ def test_station_coordinates_disconnected_groups():
     p = np.array([0, 2])
     q = np.array([1, 3])
     uvw = np.array([[10.0, 0, 0], [0, 5.0, 1.0]])
-    fit = station_coordinates(t, p, q, uvw, 1, 4)
+    fit, off = station_coordinates(t, p, q, uvw, 1, 4, tolerance_m=1e-4)
     np.testing.assert_allclose(fit[0, q] - fit[0, p], uvw, atol=1e-12)
+    assert not off.any()
 
 
 def test_prepare_sources_merges_duplicates_and_drops_empty_or_far():

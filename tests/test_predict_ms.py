@@ -131,7 +131,7 @@ class _StandInBeam:
 
 def test_per_station_beam_and_centre_correction_match_direct_sum(small_lofar_ms, tmp_path,
                                                                  monkeypatch):
-    monkeypatch.setattr(engine, "_load_beam", lambda name, ms: _StandInBeam())
+    monkeypatch.setattr(engine, "_load_beam", lambda name, ms, options=None: _StandInBeam())
     ra0, dec0 = _phase_centre(small_lofar_ms)
     rng = np.random.default_rng(8)
     l, m = rng.uniform(-0.06, 0.06, (2, 5))

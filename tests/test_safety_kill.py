@@ -297,8 +297,9 @@ def test_simulate_sigkill_and_interrupt(tmp_path):
     """A killed or interrupted simulate leaves OUT behind; rerunning without --overwrite
     says so in one line, with --overwrite it gives the same MS as a clean run."""
     out = tmp_path / "sim.ms"
-    args = [sys.executable, "-m", "msleak", "simulate", str(out), "--stations", "CS00[1-7]HBA*",
-            "--duration", "6", "--interval", "20", "--nchan", "8"]
+    # -v: the "creating ..." progress message tells when the tables are being made
+    args = [sys.executable, "-m", "msleak", "-v", "simulate", str(out), "--stations",
+            "CS00[1-7]HBA*", "--duration", "6", "--interval", "20", "--nchan", "8"]
     proc = subprocess.Popen(args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     buf = _wait_for(proc, b"creating")       # the tables are being made from here on
     time.sleep(0.2)
@@ -328,7 +329,7 @@ def test_simulate_sigkill_and_interrupt(tmp_path):
                           timeout=300)
     assert done.returncode == 0, done.stderr
     clean = tmp_path / "clean.ms"
-    subprocess.run(args[:4] + [str(clean)] + args[5:], env=_env(), check=True,
+    subprocess.run(args[:5] + [str(clean)] + args[6:], env=_env(), check=True,
                    capture_output=True, timeout=300)
     with _table(out) as a, _table(clean) as b:
         for column in ("UVW", "TIME", "ANTENNA1", "ANTENNA2", "DATA", "FLAG"):

@@ -26,26 +26,35 @@ import logging
 import os
 from pathlib import Path
 
-from msleak.beam.base import BEAM_NAMES, BeamModel, BeamName, IdentityBeam, invert_2x2
+from msleak.beam.base import (BEAM_NAMES, BeamModel, BeamName, BeamUnavailable, IdentityBeam,
+                              invert_2x2)
 from msleak.beam.mueller import jones_to_mueller, leakage, polarized_beam, to_db
 from msleak.errors import InputError
 
 __all__ = [
-    "BeamName", "BeamModel", "BEAM_NAMES", "load_beam", "IdentityBeam", "invert_2x2",
+    "BeamName", "BeamModel", "BEAM_NAMES", "BeamUnavailable", "load_beam", "IdentityBeam",
+    "invert_2x2",
     "jones_to_mueller", "polarized_beam", "leakage", "to_db",
 ]
 
 log = logging.getLogger(__name__)
 
 
-def load_beam(model: BeamName, ms: str | os.PathLike, **options) -> BeamModel:
+def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = None,
+              ddid: int | None = None, stations=None, **options) -> BeamModel:
     """The beam model ``model`` for the stations and field of ``ms``.
 
     Parameters
     ----------
     model : {'everybeam', 'everybeam-direct', 'dipole', 'none'}
     ms : path
-        Measurement Set (its first FIELD row gives the phase centre).
+        Measurement Set.
+    field_id, ddid : int, optional
+        The main-table rows the beam is for (all when None): their antennas are the
+        model's :attr:`~BeamModel.used_stations`; FIELD ``field_id`` (default 0) gives the
+        phase centre.
+    stations : int array, optional
+        ANTENNA rows to use instead of those of the rows.
     **options
         ``everybeam``/``everybeam-direct``: ``element_model`` (EveryBeam element response
         model name, default Hamaker for LOFAR).  ``dipole``: ``factor``
@@ -55,51 +64,53 @@ def load_beam(model: BeamName, ms: str | os.PathLike, **options) -> BeamModel:
     Raises
     ------
     InputError
-        Unknown model or options, or an MS the model cannot describe (the message names
-        ``--beam dipole`` when EveryBeam cannot read it).
+        Unknown model or options.
+    BeamUnavailable
+        An MS the model cannot describe (the message names ``--beam dipole``, or the
+        setting EveryBeam lacks).
     """
-    from msleak.io.ms import check_ms, read_antennas, read_fields
+    from msleak.io.ms import check_ms, read_antennas, read_fields, read_used_antennas
 
     ms = check_ms(ms)
     if model not in BEAM_NAMES:
         raise InputError(f"unknown beam {model!r}: use one of {', '.join(BEAM_NAMES)}")
+    fields = read_fields(ms)
+    field_row = 0 if field_id is None else int(field_id)
+    if not 0 <= field_row < len(fields):
+        raise InputError(f"{ms}: no FIELD_ID {field_row} (the MS has {len(fields)})")
+    used = read_used_antennas(ms, field_id, ddid) if stations is None else stations
     if model == "none":
         _no_options(model, options)
         antennas = read_antennas(ms)
-        field = read_fields(ms)[0]
-        return IdentityBeam(len(antennas), (field.ra, field.dec), antennas.names)
+        field = fields[field_row]
+        return IdentityBeam(len(antennas), (field.ra, field.dec), antennas.names, used)
     if model == "dipole":
         from msleak.beam.dipole import DipoleBeam
 
         allowed = {"factor", "diameter_m", "feed_angle_deg", "ground_plane_height_m"}
         _check_options(model, options, allowed)
-        return DipoleBeam.from_ms(ms, **options)
+        return DipoleBeam.from_ms(ms, field_id=field_row, used_stations=used, **options)
     _check_options(model, options, {"element_model"})
     element_model = options.get("element_model", "default")
     if model == "everybeam":
-        fast = _try_fast(ms, element_model)
+        fast = _try_fast(ms, element_model, used)
         if fast is not None:
             return fast
     from msleak.beam.everybeam_direct import EveryBeamDirect
 
-    return EveryBeamDirect(ms, element_model=element_model)
+    return EveryBeamDirect(ms, element_model=element_model, field_id=field_row,
+                           used_stations=used)
 
 
-def _try_fast(ms: Path, element_model: str):
-    """The fast LOFAR evaluator if the MS is a LOFAR HBA MS, else None (or InputError)."""
-    from msleak.beam.everybeam_direct import load_everybeam_telescope
-    from msleak.beam.lofar_tables import NO_LOFAR_HINT, read_lofar_array
+def _try_fast(ms: Path, element_model: str, used):
+    """The fast LOFAR evaluator if the MS is a LOFAR HBA MS with its LOFAR tables, else None
+    (EveryBeam directly, which says why it cannot read an MS)."""
+    from msleak.beam.lofar_tables import read_lofar_array
     from msleak.io.ms import read_telescope_name
 
     telescope = read_telescope_name(ms).upper()
-    lofar_tables = (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists()
-    if telescope != "LOFAR" or not lofar_tables:
-        # not a LOFAR MS: EveryBeam may still know the telescope (OSKAR, MWA, ...)
-        if telescope == "LOFAR":
-            raise InputError(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam; "
-                             f"{NO_LOFAR_HINT}")
-        load_everybeam_telescope(ms, element_model)  # raises InputError naming --beam dipole
-        log.info("%s: telescope %r is not LOFAR: using EveryBeam directly (slow)", ms,
+    if telescope != "LOFAR" or not (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists():
+        log.info("%s: telescope %r without LOFAR tables: using EveryBeam directly (slow)", ms,
                  telescope)
         return None
     if element_model not in ("default", "hamaker"):
@@ -111,7 +122,7 @@ def _try_fast(ms: Path, element_model: str):
         return None
     from msleak.beam.lofar_fast import LofarFastBeam
 
-    return LofarFastBeam(array)
+    return LofarFastBeam(array, used_stations=used)
 
 
 def _no_options(model: str, options: dict) -> None:

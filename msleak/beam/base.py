@@ -24,12 +24,25 @@ import numpy as np
 
 from msleak.errors import InputError
 
-__all__ = ["BeamName", "BeamModel", "IdentityBeam", "invert_2x2", "BEAM_NAMES"]
+__all__ = ["BeamName", "BeamModel", "IdentityBeam", "invert_2x2", "BEAM_NAMES",
+           "BeamUnavailable"]
 
 log = logging.getLogger(__name__)
 
 BeamName = Literal["everybeam", "everybeam-direct", "dipole", "none"]
 BEAM_NAMES = ("everybeam", "everybeam-direct", "dipole", "none")
+
+
+class BeamUnavailable(InputError):
+    """A beam model cannot describe an MS: ``reason`` says why, ``setting`` is an optional
+    fix of the environment (e.g. an environment variable), ``remedy`` the command-line way
+    on; the message is ``reason; [setting, or ]remedy``.  Commands whose options differ
+    (``msleak grid``) re-raise it with their own remedy."""
+
+    def __init__(self, reason: str, remedy: str = "use `--beam dipole` (analytic beam)",
+                 setting: str = ""):
+        self.reason, self.remedy, self.setting = reason, remedy, setting
+        super().__init__(f"{reason}; {setting + ', or ' if setting else ''}{remedy}")
 
 
 def invert_2x2(j: np.ndarray, *, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
@@ -65,6 +78,9 @@ class BeamModel(abc.ABC):
     n_stations : int
         Number of stations (ANTENNA rows).
     station_names : list of str
+    used_stations : (nused,) int array
+        The ANTENNA rows the model is for (those in the selected main-table rows); the
+        default of ``stations`` and the only ones it evaluates.
     phase_centre : (float, float)
         J2000 (ra, dec) in rad of the direction ``jones_centre`` and the correction use.
     """
@@ -72,11 +88,16 @@ class BeamModel(abc.ABC):
     name: str = ""
 
     def __init__(self, n_stations: int, phase_centre: tuple[float, float],
-                 station_names: list[str] | None = None):
+                 station_names: list[str] | None = None, used_stations=None):
         self.n_stations = int(n_stations)
         self.phase_centre = (float(phase_centre[0]), float(phase_centre[1]))
         self.station_names = list(station_names) if station_names is not None else [
             str(i) for i in range(self.n_stations)]
+        used = np.arange(self.n_stations) if used_stations is None else np.unique(
+            np.asarray(used_stations, dtype=np.int64))
+        if used.size == 0 or used[0] < 0 or used[-1] >= self.n_stations:
+            raise InputError(f"beam: used stations must be ANTENNA rows 0..{self.n_stations - 1}")
+        self.used_stations = used
 
     # -- to implement ------------------------------------------------------------------
     @abc.abstractmethod
@@ -98,7 +119,7 @@ class BeamModel(abc.ABC):
         ra, dec : (ndir,) arrays
             J2000 directions, rad.
         stations : (nstation,) int array, optional
-            ANTENNA rows; all stations by default.
+            ANTENNA rows among :attr:`used_stations` (the default).
         centre_correction : bool
             Return ``J(s0)^-1 J(s)`` (s0 the phase centre) instead of ``J(s)``.
         dtype : numpy complex dtype
@@ -151,12 +172,16 @@ class BeamModel(abc.ABC):
             raise InputError("beam: declinations must lie in [-pi/2, pi/2] rad")
         dec = np.clip(dec, -np.pi / 2, np.pi / 2)
         if stations is None:
-            stations = np.arange(self.n_stations)
+            stations = self.used_stations
         stations = np.atleast_1d(np.asarray(stations))
         if stations.dtype.kind not in "iu" or stations.ndim != 1:
             raise InputError("beam: stations must be a 1-D array of ANTENNA row numbers")
         if stations.size and (stations.min() < 0 or stations.max() >= self.n_stations):
             raise InputError(f"beam: station index out of range 0..{self.n_stations - 1}")
+        unused = np.setdiff1d(stations, self.used_stations)
+        if unused.size:
+            raise InputError(f"beam: ANTENNA row(s) {', '.join(map(str, unused[:5]))} do not "
+                             "occur in the selected rows of the MS")
         return time, freq, ra, dec, stations.astype(np.int64)
 
     def __repr__(self) -> str:

@@ -43,6 +43,8 @@ __all__ = [
     "exact_j2000_to_itrf",
     "sky_basis",
     "enu_basis",
+    "transport_angle",
+    "basis_rotation",
 ]
 
 log = logging.getLogger(__name__)
@@ -273,3 +275,34 @@ def enu_basis(position_itrf) -> np.ndarray:
     return np.array([[-sl, cl, 0.0],
                      [-sp * cl, -sp * sl, cp],
                      [cp * cl, cp * sl, sp]])
+
+
+def transport_angle(ra0: float, dec0: float, ra, dec) -> np.ndarray:
+    """Angle (rad) from the local North of each direction to the phase centre's North
+    parallel-transported to it along the great circle, positive towards East.
+
+    The phase centre's (North, East) basis carried to every direction of a map gives one
+    Q,U reference frame for the whole map (the tangent-plane basis); at a celestial pole
+    the North of ``(ra0, +-90 deg)`` is the limit along the meridian ``ra0``, as in
+    :func:`clip_pole`. Zero at the phase centre.
+    """
+    s0 = radec_to_unit(ra0, dec0)
+    s = radec_to_unit(ra, clip_pole(dec))
+    north0 = np.array([-np.sin(dec0) * np.cos(ra0), -np.sin(dec0) * np.sin(ra0), np.cos(dec0)])
+    axis = np.cross(s0, s)                       # sin(angle) times the rotation axis
+    cos_t = s @ s0
+    carried = (north0 * cos_t[..., None] + np.cross(axis, north0)
+               + axis * (axis @ north0)[..., None] / (1.0 + cos_t[..., None]))
+    ra = np.asarray(ra, dtype=float)
+    dec = clip_pole(dec)
+    north = np.stack([-np.sin(dec) * np.cos(ra), -np.sin(dec) * np.sin(ra), np.cos(dec)], -1)
+    east = np.stack([-np.sin(ra), np.cos(ra), np.zeros_like(ra)], -1)
+    return np.arctan2(np.sum(carried * east, -1), np.sum(carried * north, -1))
+
+
+def basis_rotation(psi) -> np.ndarray:
+    """Matrices (..., 2, 2) taking (North, East) components in a basis turned by ``psi``
+    (towards East) to components in the local (North, East) basis: ``J_local @ R`` is the
+    Jones matrix in the turned basis."""
+    c, s = np.cos(psi), np.sin(psi)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)

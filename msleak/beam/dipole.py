@@ -34,7 +34,7 @@ from typing import Literal
 
 import numpy as np
 
-from msleak.beam.base import BeamModel
+from msleak.beam.base import BeamModel, BeamUnavailable
 from msleak.beam.coords import (clip_pole, enu_basis, exact_j2000_to_itrf, itrf_map,
                                 radec_to_unit, sky_basis)
 from msleak.errors import InputError
@@ -107,7 +107,7 @@ def dipole_jones(d: np.ndarray, north: np.ndarray, east: np.ndarray, enu: np.nda
 
 
 class DipoleBeam(BeamModel):
-    """The analytic ``dipole`` beam of every station of an MS (see module notes).
+    """The analytic ``dipole`` beam of the stations of an MS (see module notes).
 
     Parameters
     ----------
@@ -120,6 +120,9 @@ class DipoleBeam(BeamModel):
     phase_centre : (ra, dec)
         J2000 phase centre, rad.
     station_names : list of str, optional
+    used_stations : int array, optional
+        The stations (rows of ``positions``) the beam is for: only their positions and
+        diameters are checked and define the array centre; all by default.
     factor : {'airy', 'gaussian', 'none'}
     feed_angle_deg : float
         X dipole angle from local north through east, deg.
@@ -132,20 +135,31 @@ class DipoleBeam(BeamModel):
     name = "dipole"
 
     def __init__(self, positions, diameters, pointing, phase_centre, station_names=None, *,
-                 factor: StationFactor = "airy", feed_angle_deg: float = 0.0,
-                 ground_plane_height_m: float | None = None, diameter_m: float | None = None):
+                 used_stations=None, factor: StationFactor = "airy",
+                 feed_angle_deg: float = 0.0, ground_plane_height_m: float | None = None,
+                 diameter_m: float | None = None):
         positions = np.asarray(positions, dtype=float).reshape(-1, 3)
-        super().__init__(len(positions), phase_centre, station_names)
+        super().__init__(len(positions), phase_centre, station_names, used_stations)
+        used = self.used_stations
         if factor not in ("airy", "gaussian", "none"):
             raise InputError(f"unknown station factor {factor!r}: use airy, gaussian or none")
         diam = np.asarray(diameters, dtype=float).reshape(-1)
         if diameter_m is not None:
-            if diameter_m <= 0:
+            if not diameter_m > 0:
                 raise InputError(f"station diameter must be positive, got {diameter_m} m")
             diam = np.full(len(positions), float(diameter_m))
-        if factor != "none" and np.any(~(diam > 0)):
-            raise InputError("the MS gives no station diameter (DISH_DIAMETER <= 0); pass "
-                             "a diameter (--diameter M) or use station factor 'none'")
+        if factor != "none" and not np.all(diam[used] > 0):
+            bad = [self.station_names[i] for i in used if not diam[i] > 0]
+            raise BeamUnavailable(
+                f"ANTENNA::DISH_DIAMETER gives no diameter (<= 0) for station(s) "
+                f"{', '.join(bad[:4])}{', ...' if len(bad) > 4 else ''}, so no Airy station "
+                "factor", remedy="pass the station diameter with `--diameter M`")
+        radius = np.linalg.norm(positions[used], axis=1)
+        if np.any((radius < 6.2e6) | (radius > 6.5e6)):
+            k = int(used[np.argmax((radius < 6.2e6) | (radius > 6.5e6))])
+            raise InputError(f"ANTENNA row {k} ({self.station_names[k]}) is used but its "
+                             f"POSITION is {np.linalg.norm(positions[k]) / 1e3:.0f} km from the "
+                             "geocentre, not an ITRF position on the Earth")
         if ground_plane_height_m is not None and ground_plane_height_m <= 0:
             raise InputError("ground-plane height must be positive (m)")
         self.positions = positions
@@ -154,23 +168,26 @@ class DipoleBeam(BeamModel):
         self.factor = factor
         self.feed_angle = np.radians(feed_angle_deg)
         self.ground_plane_height_m = ground_plane_height_m
-        self._enu = np.array([enu_basis(p) for p in positions])
-        self._centre = positions.mean(axis=0)
+        self._enu = np.zeros((len(positions), 3, 3))
+        self._enu[used] = [enu_basis(positions[i]) for i in used]
+        self._centre = positions[used].mean(axis=0)
 
     @classmethod
-    def from_ms(cls, ms, **options) -> "DipoleBeam":
-        """The dipole beam of the stations of ``ms`` (pointing: FIELD DELAY_DIR)."""
+    def from_ms(cls, ms, *, field_id: int = 0, used_stations=None, **options) -> "DipoleBeam":
+        """The dipole beam of the stations ``used_stations`` (ANTENNA rows, default all) of
+        ``ms``; phase centre and pointing (DELAY_DIR, else PHASE_DIR) of FIELD ``field_id``."""
+        from pathlib import Path
+
         from msleak.io.ms import open_table, read_antennas, read_fields
 
         antennas = read_antennas(ms)
-        field = read_fields(ms)[0]
-        from pathlib import Path
-
+        field = read_fields(ms)[field_id]
         with open_table(Path(ms) / "FIELD") as t:
-            pointing = np.asarray(t.getcell("DELAY_DIR", 0), float).reshape(-1, 2)[0] \
+            pointing = np.asarray(t.getcell("DELAY_DIR", field_id), float).reshape(-1, 2)[0] \
                 if "DELAY_DIR" in t.colnames() else (field.ra, field.dec)
         return cls(antennas.positions, antennas.diameter, tuple(pointing),
-                   (field.ra, field.dec), antennas.names, **options)
+                   (field.ra, field.dec), antennas.names, used_stations=used_stations,
+                   **options)
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         out = np.zeros((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)

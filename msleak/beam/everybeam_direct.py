@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from msleak._everybeam import import_everybeam
-from msleak.beam.base import BeamModel
+from msleak._everybeam import (EVERYBEAM_TELESCOPES, MWA_BEAM_FILE_NAME, MWA_BEAM_FILE_VARIABLE,
+                               everybeam_telescope, import_everybeam)
+from msleak.beam.base import BeamModel, BeamUnavailable
 from msleak.beam.coords import clip_pole, exact_j2000_to_itrf
-from msleak.beam.lofar_tables import NO_LOFAR_HINT
 from msleak.errors import InputError
 
 __all__ = ["EveryBeamDirect", "load_everybeam_telescope", "pole_basis", "POLE_BASIS_RAD"]
@@ -35,15 +35,70 @@ log = logging.getLogger(__name__)
 
 
 def load_everybeam_telescope(ms: str | os.PathLike, element_model: str = "default"):
-    """``everybeam.load_telescope`` with no normalisation; InputError naming --beam dipole."""
+    """``everybeam.load_telescope`` with no normalisation.
+
+    Raises
+    ------
+    BeamUnavailable
+        Before calling EveryBeam when the MS's TELESCOPE_NAME has no EveryBeam model, or an
+        MS or environment lacks what that model reads (LOFAR tables, MWA dipole delays, the
+        MWA coefficients file); any error of EveryBeam itself likewise.
+    """
+    from msleak.io.ms import open_table, read_telescope_name
+
+    name = read_telescope_name(ms)
+    kind = everybeam_telescope(name)
+    if kind is None:
+        known = ", ".join(sorted(list(EVERYBEAM_TELESCOPES) + ["OSKAR*"]))
+        raise BeamUnavailable(f"{ms}: EveryBeam has no beam model for TELESCOPE_NAME {name!r} "
+                              f"(its Python bindings know {known})")
+    coeff_path = ""
+    if kind == "LOFAR" and not (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists():
+        raise BeamUnavailable(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam")
+    if kind == "MWA":
+        with open_table(ms) as t:
+            has_delays = "MWA_TILE_POINTING" in t.getkeywords()
+        if not has_delays:
+            raise BeamUnavailable(f"{ms}: no MWA_TILE_POINTING table (the tiles' dipole "
+                                  "delays), which EveryBeam's MWA beam needs")
+        coeff_path = _mwa_coefficients(ms)
     eb = import_everybeam()
+    return _everybeam_call(ms, eb.load_telescope, str(ms), use_differential_beam=False,
+                           element_response_model=element_model, coeff_path=coeff_path)
+
+
+#: The fix of the environment an MWA beam may need.
+_MWA_SETTING = f"set {MWA_BEAM_FILE_VARIABLE} to the path of {MWA_BEAM_FILE_NAME}"
+
+
+def _mwa_coefficients(ms) -> str:
+    """The MWA FEE coefficients file named by MWA_BEAM_FILE, checked to be an HDF5 file."""
+    path = os.environ.get(MWA_BEAM_FILE_VARIABLE, "")
+    if not path:
+        raise BeamUnavailable(f"{ms}: EveryBeam's MWA beam needs the MWA FEE coefficients "
+                              f"file {MWA_BEAM_FILE_NAME} and {MWA_BEAM_FILE_VARIABLE} is not "
+                              "set", setting=_MWA_SETTING)
     try:
-        return eb.load_telescope(str(ms), use_differential_beam=False,
-                                 element_response_model=element_model)
-    except RuntimeError as err:
+        with open(path, "rb") as f:
+            signature = f.read(8)
+    except OSError as err:
+        raise BeamUnavailable(f"{MWA_BEAM_FILE_VARIABLE}={path}: cannot read it "
+                              f"({err.strerror})", setting=_MWA_SETTING) from err
+    if signature != b"\x89HDF\r\n\x1a\n":
+        raise BeamUnavailable(f"{MWA_BEAM_FILE_VARIABLE}={path}: not an HDF5 file",
+                              setting=_MWA_SETTING)
+    return path
+
+
+def _everybeam_call(ms, function, *args, setting: str = "", **kwargs):
+    """``function(*args, **kwargs)`` of EveryBeam with its errors as BeamUnavailable
+    (naming ``setting``, the environment fix that may cure them, if any)."""
+    try:
+        return function(*args, **kwargs)
+    except (RuntimeError, ValueError) as err:
         text = " ".join(str(err).split())[:160]
-        raise InputError(f"{ms}: EveryBeam cannot make a beam for this MS ({text}); "
-                         f"{NO_LOFAR_HINT}") from err
+        raise BeamUnavailable(f"{ms}: EveryBeam cannot make a beam for this MS ({text})",
+                              setting=setting) from err
 
 
 class EveryBeamDirect(BeamModel):
@@ -55,21 +110,34 @@ class EveryBeamDirect(BeamModel):
         The Measurement Set EveryBeam loads.
     element_model : str
         EveryBeam element response model (``default`` = Hamaker for LOFAR).
+    field_id : int
+        FIELD row of the phase centre and pointing.
+    used_stations : int array, optional
+        The stations the beam is for (default all).
+
+    The first used station's response towards the phase centre at the MS's first time and
+    frequency is computed here, so an MS EveryBeam cannot evaluate is refused at once.
     """
 
     name = "everybeam-direct"
 
-    def __init__(self, ms: str | os.PathLike, element_model: str = "default"):
-        from msleak.io.ms import read_antennas, read_fields
+    def __init__(self, ms: str | os.PathLike, element_model: str = "default",
+                 field_id: int = 0, used_stations=None):
+        from msleak.io.ms import iter_rows, read_antennas, read_fields, read_spectral_windows
 
         self.telescope = load_everybeam_telescope(ms, element_model)
+        self._setting = _MWA_SETTING if type(self.telescope).__name__ == "MWA" else ""
         antennas = read_antennas(ms)
-        field = read_fields(ms)[0]
+        field = read_fields(ms)[field_id]
         super().__init__(self.telescope.nr_stations, (field.ra, field.dec),
-                         list(antennas.names))
+                         list(antennas.names), used_stations)
         self.ms = Path(ms)
-        self._delay, self._tile = self._read_beam_dirs(ms, (field.ra, field.dec))
+        self._delay, self._tile = self._read_beam_dirs(ms, (field.ra, field.dec), field_id)
         self._axes = self._station_axes(ms)
+        first = next(iter_rows(ms, ["TIME"], chunk_rows=1), (None, {"TIME": []}))[1]["TIME"]
+        if len(first):
+            self.jones(first[:1], read_spectral_windows(ms)[0].freq[:1], [field.ra],
+                       [field.dec], stations=self.used_stations[:1])
 
     @staticmethod
     def _station_axes(ms):
@@ -88,14 +156,14 @@ class EveryBeamDirect(BeamModel):
         return out
 
     @staticmethod
-    def _read_beam_dirs(ms, default):
+    def _read_beam_dirs(ms, default, row):
         from msleak.io.ms import open_table
 
         with open_table(Path(ms) / "FIELD") as t:
             cols = t.colnames()
-            delay = np.asarray(t.getcell("DELAY_DIR", 0), float).reshape(-1, 2)[0] \
+            delay = np.asarray(t.getcell("DELAY_DIR", row), float).reshape(-1, 2)[0] \
                 if "DELAY_DIR" in cols else np.asarray(default)
-            tile = np.asarray(t.getcell("LOFAR_TILE_BEAM_DIR", 0), float).reshape(-1, 2)[0] \
+            tile = np.asarray(t.getcell("LOFAR_TILE_BEAM_DIR", row), float).reshape(-1, 2)[0] \
                 if "LOFAR_TILE_BEAM_DIR" in cols else delay
         return (float(delay[0]), float(delay[1])), (float(tile[0]), float(tile[1]))
 
@@ -117,14 +185,15 @@ class EveryBeamDirect(BeamModel):
                     out[:, it, :, k] = self._pole_response(t, stations, freq, ra[k], dec[k],
                                                            d[k], s0, t0)
                 elif vector_call:
-                    r = tel.station_response(np.array([t]), stations.astype(np.uint64),
-                                             freq, d[k], s0, t0)
+                    r = _everybeam_call(self.ms, tel.station_response, np.array([t]),
+                                        stations.astype(np.uint64), freq, d[k], s0, t0,
+                                        setting=self._setting)
                     out[:, it, :, k] = np.asarray(r)[0]
                 else:
                     for si, s in enumerate(stations):
                         for c, f in enumerate(freq):
-                            out[si, it, c, k] = self._single(tel, t, int(s), float(f),
-                                                             d[k], ra[k], dec[k])
+                            out[si, it, c, k] = self._single(t, int(s), float(f), d[k],
+                                                             ra[k], dec[k])
         # EveryBeam's element models are zero below the horizon; never hand out NaN
         out[~np.isfinite(out)] = 0
         return out.astype(dtype, copy=False)
@@ -132,8 +201,9 @@ class EveryBeamDirect(BeamModel):
     def _pole_response(self, t, stations, freq, ra, dec, d, s0, t0):
         from msleak.beam.lofar_fast import sky_rotation
 
-        raw = np.asarray(self.telescope.station_response(
-            np.array([t]), stations.astype(np.uint64), freq, d, s0, t0, False))[0]
+        raw = np.asarray(_everybeam_call(self.ms, self.telescope.station_response,
+                                         np.array([t]), stations.astype(np.uint64), freq, d,
+                                         s0, t0, False, setting=self._setting))[0]
         north, east = pole_basis(t, ra, dec, d)
         out = np.empty_like(raw)
         for si, s in enumerate(stations):
@@ -141,12 +211,15 @@ class EveryBeamDirect(BeamModel):
             out[si] = raw[si] @ rot
         return out
 
-    @staticmethod
-    def _single(tel, t, s, f, d, ra, dec):
+    def _single(self, t, s, f, d, ra, dec):
+        """One (station, frequency) response from the bindings' direction-vector call (MWA),
+        or their (ra, dec) call (dishes)."""
+        call, setting = self.telescope.station_response, self._setting
         try:
-            return np.asarray(tel.station_response(t, s, f, d))
+            return np.asarray(_everybeam_call(self.ms, call, t, s, f, d, setting=setting))
         except TypeError:
-            return np.asarray(tel.station_response(t, s, f, float(ra), float(dec)))
+            return np.asarray(_everybeam_call(self.ms, call, t, s, f, float(ra), float(dec),
+                                              setting=setting))
 
 
 def pole_basis(time_mjd_s: float, ra: float, dec: float, d: np.ndarray,

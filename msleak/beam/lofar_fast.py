@@ -117,11 +117,13 @@ class LofarFastBeam(BeamModel):
         From :func:`msleak.beam.lofar_tables.read_lofar_array`.
     element_model : str
         EveryBeam element model name; only ``hamaker`` is supported by the fast path.
+    used_stations : int array, optional
+        The stations the beam is for (default all).
     """
 
     name = "everybeam"
 
-    def __init__(self, array: LofarArray, element_model: str = "hamaker"):
+    def __init__(self, array: LofarArray, element_model: str = "hamaker", used_stations=None):
         if element_model != "hamaker":
             raise InputError(f"the fast LOFAR beam supports the 'hamaker' element model only, "
                              f"not {element_model!r}; use --beam everybeam-direct")
@@ -129,7 +131,7 @@ class LofarFastBeam(BeamModel):
             raise InputError("the fast LOFAR beam handles HBA fields only; this MS has LBA "
                              "fields: use --beam everybeam-direct")
         super().__init__(len(array.stations), array.phase_centre,
-                         [s.name for s in array.stations])
+                         [s.name for s in array.stations], used_stations)
         eb = import_everybeam()
         self.array = array
         fields = [(i, s, f) for i, s in enumerate(array.stations) for f in s.fields]

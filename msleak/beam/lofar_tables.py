@@ -14,12 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak.beam.base import BeamUnavailable
 from msleak.errors import InputError
 
-__all__ = ["LofarField", "LofarStation", "LofarArray", "read_lofar_array", "NO_LOFAR_HINT"]
-
-#: What to tell a user whose MS cannot give the LOFAR beam.
-NO_LOFAR_HINT = "use `--beam dipole` (analytic beam) or `--beam none`"
+__all__ = ["LofarField", "LofarStation", "LofarArray", "read_lofar_array"]
 
 
 @dataclass(frozen=True)
@@ -82,22 +80,25 @@ def read_lofar_array(ms: str | os.PathLike) -> LofarArray:
 
     Raises
     ------
-    InputError
+    BeamUnavailable
         If the MS lacks a LOFAR table or column EveryBeam needs, or has several fields.
+    InputError
+        If LOFAR_ANTENNA_FIELD refers to a missing antenna.
     """
     from msleak.io.ms import check_ms, open_table
 
     ms = check_ms(ms)
     field_table = Path(ms) / "LOFAR_ANTENNA_FIELD"
     if not (field_table / "table.dat").exists():
-        raise InputError(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam; {NO_LOFAR_HINT}")
+        raise BeamUnavailable(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam")
     with open_table(Path(ms) / "FIELD") as t:
         if "LOFAR_TILE_BEAM_DIR" not in t.colnames():
-            raise InputError(f"{ms}: FIELD has no LOFAR_TILE_BEAM_DIR column, so no LOFAR beam; "
-                             f"{NO_LOFAR_HINT}")
+            raise BeamUnavailable(f"{ms}: FIELD has no LOFAR_TILE_BEAM_DIR column, so no "
+                                  "LOFAR beam")
         if t.nrows() != 1:
-            raise InputError(f"{ms}: the LOFAR beam needs an MS with one field, this one has "
-                             f"{t.nrows()}; split it per field (DP3) or {NO_LOFAR_HINT}")
+            raise BeamUnavailable(f"{ms}: the LOFAR beam needs an MS with one field, this one "
+                                  f"has {t.nrows()}", remedy="split it per field (DP3) or use "
+                                  "`--beam dipole` (analytic beam)")
         delay = _cell(t, "DELAY_DIR", 0).reshape(-1, 2)[0]
         tile = _cell(t, "LOFAR_TILE_BEAM_DIR", 0).reshape(-1, 2)[0]
         phase = _cell(t, "PHASE_DIR", 0).reshape(-1, 2)[0]
@@ -121,8 +122,8 @@ def read_lofar_array(ms: str | os.PathLike) -> LofarArray:
             element_offsets = None
             if name != "LBA":
                 if "TILE_ELEMENT_OFFSET" not in cols:
-                    raise InputError(f"{ms}: LOFAR_ANTENNA_FIELD has no TILE_ELEMENT_OFFSET "
-                                     f"column for HBA fields; {NO_LOFAR_HINT}")
+                    raise BeamUnavailable(f"{ms}: LOFAR_ANTENNA_FIELD has no "
+                                          "TILE_ELEMENT_OFFSET column for HBA fields")
                 element_offsets = _cell(t, "TILE_ELEMENT_OFFSET", row).reshape(-1, 3)
             fields[station].append(LofarField(
                 name=name,
@@ -134,8 +135,8 @@ def read_lofar_array(ms: str | os.PathLike) -> LofarArray:
             ))
     missing = [names[i] for i, f in enumerate(fields) if not f]
     if missing:
-        raise InputError(f"{ms}: stations {', '.join(missing[:5])} have no LOFAR_ANTENNA_FIELD "
-                         f"rows; {NO_LOFAR_HINT}")
+        raise BeamUnavailable(f"{ms}: stations {', '.join(missing[:5])} have no "
+                              "LOFAR_ANTENNA_FIELD rows")
     stations = tuple(LofarStation(name=n, phase_reference=refs[i], fields=tuple(fields[i]))
                      for i, n in enumerate(names))
     return LofarArray(stations=stations, delay_dir=(float(delay[0]), float(delay[1])),

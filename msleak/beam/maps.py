@@ -4,7 +4,9 @@ The map grid is a square in the SIN (orthographic) projection about the phase ce
 ``l`` (towards East) and ``m`` (towards North) from ``-fov/2`` to ``+fov/2`` in direction
 cosines expressed in degrees.  At each time the phase-centre-corrected Jones matrices of
 the selected stations give auto-correlation Mueller matrices ``M_pp``
-(:func:`msleak.beam.mueller.jones_to_mueller`), averaged over the stations; the maps are the
+(:func:`msleak.beam.mueller.jones_to_mueller`), averaged over the stations, with Q and U
+in one basis for the whole map by default (the phase centre's, parallel-transported); the
+maps are the
 polarized beam ``sqrt(M11^2 + M22^2)`` relative to its phase-centre value and the leakage
 ``sqrt(M01^2 + M02^2) / M00``, linear and in dB.
 """
@@ -12,19 +14,30 @@ polarized beam ``sqrt(M11^2 + M22^2)`` relative to its phase-centre value and th
 from __future__ import annotations
 
 import logging
+from typing import Literal, get_args
 
 import numpy as np
 
 from msleak.beam.base import BeamModel
+from msleak.beam.coords import basis_rotation, transport_angle
 from msleak.beam.mueller import (jones_to_mueller, leakage, polarized_beam,
                                  polarized_beam_invariant, to_db)
 from msleak.conventions import STOKES_CONVENTION, FeedType
 from msleak.errors import InputError
 
-__all__ = ["sin_grid", "hour_angle_h", "times_for_hour_angles", "default_times", "beam_maps",
+__all__ = ["BASES", "Basis", "sin_grid", "hour_angle_h", "times_for_hour_angles", "default_times", "beam_maps",
            "SIDEREAL_RATIO"]
 
 log = logging.getLogger(__name__)
+
+Basis = Literal["tangent", "local"]
+#: Q,U reference frames of beam maps (see :func:`beam_maps`)
+BASES: tuple = get_args(Basis)
+BASIS_DESCRIPTIONS = {
+    "tangent": "Q,U in the phase centre's (North, East) basis parallel-transported along "
+               "great circles to each pixel",
+    "local": "Q,U in each pixel's own (North, East) basis",
+}
 
 #: sidereal days per solar day
 SIDEREAL_RATIO = 1.00273790935
@@ -89,7 +102,8 @@ def times_for_hour_angles(hour_angles_h, ra: float, position_itrf, reference_tim
 
 
 def beam_maps(beam: BeamModel, times_mjd_s, freq_hz: float, *, fov_deg: float = 15.0,
-              npix: int = 61, feed: FeedType = "linear", stations=None, hour_angles_h=None):
+              npix: int = 61, feed: FeedType = "linear", stations=None, hour_angles_h=None,
+              basis: Basis = "tangent"):
     """Polarized-beam and leakage maps at several times, as an :class:`xarray.Dataset`.
 
     Parameters
@@ -102,9 +116,15 @@ def beam_maps(beam: BeamModel, times_mjd_s, freq_hz: float, *, fov_deg: float = 
         Map size (deg, SIN projection) and pixels per side.
     feed : {'linear', 'circular'}
     stations : int array, optional
-        Stations whose Mueller matrices are averaged (all by default).
+        Stations whose Mueller matrices are averaged (default ``beam.used_stations``, the
+        antennas of the MS's rows).
     hour_angles_h : (ntime,) array, optional
         Hour angles to label the maps with (h).
+    basis : {'tangent', 'local'}
+        Q,U reference frame of the Mueller matrices: ``tangent``, the phase centre's
+        (North, East) basis parallel-transported to every pixel (one frame for the whole
+        map, so the pattern is the beam's even at a celestial pole); ``local``, each
+        pixel's own (North, East) basis (docs/beam.md).
 
     Returns
     -------
@@ -120,10 +140,16 @@ def beam_maps(beam: BeamModel, times_mjd_s, freq_hz: float, *, fov_deg: float = 
     ra0, dec0 = beam.phase_centre
     l_deg, m_deg, ra, dec = sin_grid(ra0, dec0, fov_deg, npix)
     centre = np.unravel_index(np.argmin(l_deg[None, :] ** 2 + m_deg[:, None] ** 2), ra.shape)
+    if basis not in BASES:
+        raise InputError(f"unknown Q,U basis {basis!r}: use {' or '.join(BASES)}")
+    turn = (basis_rotation(transport_angle(ra0, dec0, ra.ravel(), dec.ravel()))
+            if basis == "tangent" else None)
     mueller = np.empty((times.size, npix, npix, 4, 4))
     for it, t in enumerate(times):
         j = beam.jones([t], [freq_hz], ra.ravel(), dec.ravel(), stations=stations,
                        centre_correction=True)[:, 0, 0]           # (nstation, ndir, 2, 2)
+        if turn is not None:
+            j = j @ turn
         m = np.real(jones_to_mueller(j, feed=feed)).mean(axis=0)  # (ndir, 4, 4)
         mueller[it] = m.reshape(npix, npix, 4, 4)
     pb = polarized_beam(mueller)
@@ -175,11 +201,13 @@ def beam_maps(beam: BeamModel, times_mjd_s, freq_hz: float, *, fov_deg: float = 
             "npix": int(npix),
             "feed": feed,
             "projection": "SIN about the phase centre",
+            "qu_basis": basis,
+            "qu_basis_description": BASIS_DESCRIPTIONS[basis],
             "phase_centre_ra_deg": float(np.degrees(ra0)),
             "phase_centre_dec_deg": float(np.degrees(dec0)),
             "centre_pixel": f"{centre[0]},{centre[1]}",
             "stations": ",".join(beam.station_names[int(s)] for s in (
-                np.arange(beam.n_stations) if stations is None else np.atleast_1d(stations))),
+                beam.used_stations if stations is None else np.atleast_1d(stations))),
             "normalisation": "J(s0)^-1 J(s) per station; Mueller matrices averaged over "
                              "stations; dB = 10 log10",
             "db_floor": -100.0,

@@ -1,18 +1,22 @@
 """Mueller matrices of beam Jones matrices, the polarized beam and the Stokes I leakage.
 
 For stations p and q with Jones matrices ``J_p``, ``J_q`` mapping the sky electric field in
-the (North, East) basis to feed voltages, the correlations of a source with brightness
-matrix ``B`` are ``J_p B J_q^H``.  Stacking 2x2 matrices row by row (``XX, XY, YX, YY``),
-``vec(J_p B J_q^H) = (J_p kron conj(J_q)) vec(B)``, so the Mueller matrix mapping sky Stokes
+the (North, East) basis to the voltages of (X, Y) feeds (the basis every beam model
+returns), feeds of type ``feed`` see ``C J_p`` with ``C`` from
+:func:`msleak.conventions.feed_basis_matrix` (identity for linear feeds, (X, Y) -> (R, L)
+for circular ones). The correlations of a source with brightness matrix ``B`` are
+``C J_p B J_q^H C^H``; stacking 2x2 matrices row by row,
+``vec(A B A'^H) = (A kron conj(A')) vec(B)``, so the Mueller matrix mapping sky Stokes
 (I, Q, U, V) to apparent Stokes is::
 
-    M = S_feed^-1 (J_p kron conj(J_q)) S_sky
+    M = S_feed^-1 (C J_p kron conj(C J_q)) S_linear
 
-with ``S`` from :mod:`msleak.conventions` (correlations = S @ (I, Q, U, V)); the sky side
-is always the linear (North, East) basis, the output side the feeds' own (linear or
-circular) correlations.  For ``J_p = J_q`` the matrix is real.
+with ``S`` from :mod:`msleak.conventions` (correlations = S @ (I, Q, U, V)). Since
+``(C kron conj C) S_linear = S_circular``, M is the same for both feed types: a physical
+beam leaks Q into I whatever products the correlator forms. Identity Jones matrices give
+the identity. For ``J_p = J_q`` the matrix is real.
 
-Figures of merit (method.md sections 4 and 8, 0-based indices)::
+Figures of merit (0-based indices)::
 
     polarized beam   sqrt(M[1,1]^2 + M[2,2]^2)
     leakage          sqrt(M[0,1]^2 + M[0,2]^2) / M[0,0]      (Q, U -> I, fraction of I)
@@ -27,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from msleak.conventions import FeedType, stokes_to_correlations_matrix
+from msleak.conventions import FeedType, feed_basis_matrix, stokes_to_correlations_matrix
 
 __all__ = ["jones_to_mueller", "polarized_beam", "polarized_beam_invariant", "leakage",
            "to_db", "DB_FLOOR"]
@@ -43,14 +47,16 @@ def jones_to_mueller(jp: np.ndarray, jq: np.ndarray | None = None,
     Parameters
     ----------
     jp : (..., 2, 2) complex array
-        Station p, sky (North, East) basis to feeds.
+        Station p: sky (North, East) basis to (X, Y) feed voltages.
     jq : (..., 2, 2) complex array, optional
         Station q (default: ``jp``, the auto-correlation Mueller matrix).
     feed : {'linear', 'circular'}
-        The feeds' correlation convention (output side).
+        The feeds whose correlations are formed (the Stokes-space result does not depend
+        on it).
     """
-    jp = np.asarray(jp)
-    jq = jp if jq is None else np.asarray(jq)
+    c = feed_basis_matrix(feed)
+    jp = c @ np.asarray(jp)
+    jq = jp if jq is None else c @ np.asarray(jq)
     kron = np.einsum("...ij,...kl->...ikjl", jp, np.conj(jq))
     kron = kron.reshape(*kron.shape[:-4], 4, 4)
     s_sky = stokes_to_correlations_matrix("linear")

@@ -7,9 +7,11 @@ dependency of one command never slows another.
 from __future__ import annotations
 
 import errno
-import importlib
+import importlib.util
 import logging
 import sys
+import warnings
+from pathlib import Path
 
 import click
 
@@ -87,8 +89,10 @@ def _one_line(err: BaseException) -> str:
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="msleak")
-@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
-@click.option("-q", "--quiet", is_flag=True, help="Only warnings and errors.")
+@click.option("-v", "--verbose", count=True,
+              help="More output: -v progress and library warnings, -vv debugging detail.")
+@click.option("-q", "--quiet", is_flag=True,
+              help="Only errors and each command's result (no warnings, no progress).")
 @click.option("--debug", is_flag=True, help="Show the full traceback of unexpected failures.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
@@ -111,7 +115,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     # the global options, for commands that run other msleak commands (msleak paper)
     ctx.obj["global_args"] = (["-q"] if quiet else []) + ["-v"] * verbose + \
         (["--debug"] if debug else [])
-    level = logging.WARNING if quiet else (logging.INFO if verbose < 2 else logging.DEBUG)
+    level = _log_level(verbose, quiet)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s",
                                            "%H:%M:%S"))
@@ -119,6 +123,30 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     root.handlers[:] = [h for h in root.handlers if isinstance(h, logging.NullHandler)]
     root.addHandler(handler)
     root.setLevel(level)
+    # the step lines of multi-step commands (msleak paper) are progress the user needs
+    logging.getLogger("msleak.steps").setLevel(level if quiet else min(level, logging.INFO))
+    _route_warnings()
+    log.debug("msleak %s from %s, Python %s", __version__,
+              Path(__file__).resolve().parents[1], sys.version.split()[0])
+
+
+def _log_level(verbose: int, quiet: bool) -> int:
+    """Default WARNING; -v INFO, -vv DEBUG; -q ERROR (wins over -v)."""
+    if quiet:
+        return logging.ERROR
+    return {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
+
+
+def _route_warnings() -> None:
+    """Python warnings (astropy's included) become one INFO line each of ``msleak.warnings``:
+    shown from -v on, never in the way of the one-line error."""
+    import astropy  # noqa: F401  (astropy replaces warnings.showwarning when imported)
+
+    warnings.showwarning = _log_warning
+
+
+def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    logging.getLogger("msleak.warnings").info("%s: %s", category.__name__, _one_line(message))
 
 
 def main() -> None:

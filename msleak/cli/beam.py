@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from msleak.beam.maps import BASES
 from msleak.cli._common import FloatList
 
 log = logging.getLogger(__name__)
@@ -33,7 +34,7 @@ log = logging.getLogger(__name__)
               "(EveryBeam per direction, slow) or dipole (analytic, any MS).")
 @click.option("--station", "station", default=None, metavar="NAME",
               help="Map one station (ANTENNA name). Default: Mueller matrices averaged over "
-              "all stations.")
+              "the stations that occur in the rows of field 0.")
 @click.option("--diameter", "diameter_m", type=float, default=None, metavar="M",
               help="Dipole beam: station diameter (m) of its Airy station factor "
               "[default: ANTENNA::DISH_DIAMETER].")
@@ -43,9 +44,13 @@ log = logging.getLogger(__name__)
 @click.option("--invariant", is_flag=True,
               help="Plot the polarized beam as sqrt(M11^2+M12^2+M21^2+M22^2), independent of "
               "the Q,U reference frame (useful near a celestial pole); both are in the product.")
+@click.option("--basis", type=click.Choice(BASES), default="tangent", show_default=True,
+              help="Q,U frame of the maps: tangent, the phase centre's (North, East) basis "
+              "parallel-transported to every pixel (one frame for the map); local, each "
+              "pixel's own North, which turns around a celestial pole.")
 @click.option("--pdf", is_flag=True, help="Also write a PDF beside the figure.")
 def beam(ms, output, fov_deg, npix, hour_angles, freq_hz, beam_name, station, diameter_m,
-         product, invariant, pdf):
+         product, invariant, basis, pdf):
     """Maps of the polarized beam sqrt(M11^2+M22^2) and of the Q,U->I leakage
     sqrt(M01^2+M02^2)/M00 of MS's station beams, normalised to the phase centre, in dB,
     at several hour angles (method.md section 8).
@@ -61,7 +66,8 @@ def beam(ms, output, fov_deg, npix, hour_angles, freq_hz, beam_name, station, di
                                   times_for_hour_angles)
     from msleak.conventions import feed_type_from_corr_types
     from msleak.io.ms import (check_ms, read_antennas, read_corr_types,
-                              read_data_descriptions, read_spectral_windows, read_times)
+                              read_data_descriptions, read_spectral_windows, read_times,
+                              read_used_antennas)
     from msleak.io.products import save_product
     from msleak.plot.beam import plot_beam_maps
 
@@ -75,22 +81,27 @@ def beam(ms, output, fov_deg, npix, hour_angles, freq_hz, beam_name, station, di
         raise click.BadParameter("only applies to --beam dipole", param_hint="--diameter")
     ms = check_ms(ms)
     options = {"diameter_m": diameter_m} if diameter_m is not None else {}
-    model = load_beam(beam_name, ms, **options)
-    stations = None
+    antennas = read_antennas(ms)
+    in_rows = read_used_antennas(ms, field_id=0)
+    used = in_rows
     if station is not None:
-        if station not in model.station_names:
-            raise click.BadParameter(f"{station!r} is not an ANTENNA name of {ms}",
-                                     param_hint="--station")
-        stations = np.array([model.station_names.index(station)])
+        names = [antennas.names[i] for i in in_rows]
+        if station not in names:
+            raise click.BadParameter(
+                f"{station!r} is not an antenna of the rows of field 0 of {ms} (they are "
+                f"{', '.join(names[:6])}{', ...' if len(names) > 6 else ''})",
+                param_hint="--station")
+        used = in_rows[[names.index(station)]]
+    model = load_beam(beam_name, ms, field_id=0, stations=used, **options)
     ddid = read_data_descriptions(ms)
     pol_id = ddid[0][1] if ddid else 0
     feed = feed_type_from_corr_types(read_corr_types(ms)[pol_id])
     if freq_hz is None:
         freq = read_spectral_windows(ms)[ddid[0][0] if ddid else 0].freq
         freq_hz = float(freq[freq.size // 2])
-    position = read_antennas(ms).positions.mean(axis=0)
+    position = antennas.positions[in_rows].mean(axis=0)
     ra0 = model.phase_centre[0]
-    times = read_times(ms)
+    times = read_times(ms, field_id=0)
     if hour_angles:
         mid = float(np.median(times)) if times.size else None
         if mid is None:
@@ -103,7 +114,7 @@ def beam(ms, output, fov_deg, npix, hour_angles, freq_hz, beam_name, station, di
     log.info("beam maps of %s (%s) at %.3f MHz, hour angles %s h", ms, model.name,
              freq_hz / 1e6, ", ".join(f"{h:+.2f}" for h in has))
     ds = beam_maps(model, times, freq_hz, fov_deg=fov_deg, npix=npix, feed=feed,
-                   stations=stations, hour_angles_h=has)
+                   hour_angles_h=has, basis=basis)
     ds.attrs["source"] = str(ms)
     product = Path(product) if product else Path(output).with_suffix(".h5")
     save_product(ds, product, "beam")

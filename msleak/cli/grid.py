@@ -1,14 +1,16 @@
-"""``msleak grid``: grid Stokes visibilities of an MS column (or an image cube) into a uv cube."""
+"""``msleak grid``: grid Stokes visibilities of MS columns (or an image cube) into uv cubes."""
 
 from __future__ import annotations
 
 import logging
 import sys
+from pathlib import Path
 
 import click
 
 from msleak.cli._common import FloatList
 from msleak.cli.predict import _Memory
+from msleak.errors import InputError
 from msleak.parallel.options import parallel_options
 
 log = logging.getLogger(__name__)
@@ -16,10 +18,14 @@ log = logging.getLogger(__name__)
 
 @click.command()
 @click.argument("ms", nargs=-1, type=click.Path())
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Output uv cube (HDF5, docs/products.md 'uvcube').")
-@click.option("--column", default="DATA", show_default=True,
-              help="Visibility column: DATA, MODEL_DATA, CORRECTED_DATA, ...")
+@click.option("-o", "--output", "outputs", required=True, multiple=True,
+              type=click.Path(dir_okay=False),
+              help="Output uv cube (HDF5, docs/products.md 'uvcube'); with several --column, "
+              "one -o per column, in the same order.")
+@click.option("--column", "columns", default=["DATA"], multiple=True, show_default=True,
+              help="Visibility column: DATA, MODEL_DATA, CORRECTED_DATA, ... Repeat to grid "
+              "several columns in one pass (UVW, flags and weights are read once), each into "
+              "its own -o.")
 @click.option("--cell", "cell", type=float, default=16.0, show_default=True, metavar="LAMBDA",
               help="uv cell size in wavelengths (16 = a LOFAR core HBA station diameter).")
 @click.option("--uv-range", "uv_range", type=FloatList(2), default="30,180", show_default=True,
@@ -70,7 +76,7 @@ log = logging.getLogger(__name__)
               "model (auto: everybeam with LOFAR tables, else dipole), or an Airy disc of a "
               "cell-wide station.")
 @parallel_options
-def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, beam_area_sr,
+def grid(ms, outputs, columns, cell, uv_range, gridder, split, field_id, ddid, beam_area_sr,
          images, stokes, fov_deg, beam_fwhm_deg, taper, chunk_rows, memory_limit, epsilon,
          threads, beam_area_model, scheduler, workers):
     """Grid Stokes I, Q, U, V (and P = Q + iU) visibilities of MS, channel by channel, on
@@ -78,10 +84,13 @@ def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, bea
     and weights (WEIGHT_SPECTRUM or WEIGHT) are honoured; autocorrelations are skipped.
     Several MSs (e.g. one per subband) are put on one frequency axis in frequency order:
     overlapping channels are an error, missing channels are left empty and reported.
+    Several columns are gridded in one pass, one uv cube each, every column identical to
+    its own single-column run.
 
     \b
     Examples:
       msleak grid obs.ms --column MODEL_DATA -o grid.h5
+      msleak grid obs.ms --column MODEL_4DEG --column MODEL_8DEG -o g4.h5 -o g8.h5
       msleak grid obs.ms --uv-range 30,800 --split even-odd -o grid.h5
       msleak grid SB000.ms SB001.ms SB002.ms --scheduler processes -o grid.h5
       msleak grid --image q.fits --image u.fits --stokes Q,U --fov 4 -o grid.h5
@@ -90,6 +99,7 @@ def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, bea
 
     if bool(ms) == bool(images):
         raise click.UsageError("give either an MS or --image CUBE.fits (not both)")
+    _check_outputs(outputs, columns, bool(images))
     if not cell > 0:
         raise click.BadParameter("must be positive (wavelengths)", param_hint="--cell")
     if not 0 <= uv_range[0] < uv_range[1]:
@@ -101,21 +111,41 @@ def grid(ms, output, column, cell, uv_range, gridder, split, field_id, ddid, bea
         slist = [s.strip().upper() for s in stokes.split(",")] if stokes else None
         if slist and any(s not in "IQUV" or len(s) != 1 for s in slist):
             raise click.BadParameter(f"{stokes!r}: use I, Q, U or V", param_hint="--stokes")
-        ds = grid_image(images, stokes=slist, fov_deg=fov_deg, uv_range=tuple(uv_range),
-                        beam_fwhm_deg=beam_fwhm_deg, beam_area_sr=beam_area_sr)
+        cubes = [grid_image(images, stokes=slist, fov_deg=fov_deg, uv_range=tuple(uv_range),
+                            beam_fwhm_deg=beam_fwhm_deg, beam_area_sr=beam_area_sr)]
     else:
         from msleak.ps.uvcube import grid_ms
 
-        ds = grid_ms(list(ms), column=column, cell=cell, uv_range=tuple(uv_range),
-                     gridder=gridder, split=split, field_id=field_id, ddid=ddid,
-                     chunk_rows=chunk_rows, epsilon=epsilon, nthreads=threads,
-                     beam_area_sr=beam_area_sr, taper=taper, progress=sys.stderr.isatty(),
-                     scheduler=scheduler, workers=workers, memory_limit=memory_limit,
-                     beam_area_model=beam_area_model)
-        if ds.attrs.get("n_gap_channels"):
-            click.echo(f"warning: {ds.attrs['n_gap_channels']} channel(s) missing between the "
-                       f"Measurement Sets ({ds.attrs['freq_gaps']}) are left empty", err=True)
-    save_product(ds, output, "uvcube")
-    n = int((ds["weight"].values > 0).any(axis=0).sum())
-    click.echo(f"uv cube {output}: {ds.sizes['freq']} channels, {ds.sizes['u']}x{ds.sizes['v']} "
-               f"cells of {ds.attrs['cell_lambda']:.4g} wavelengths ({n} with data)")
+        cubes = grid_ms(list(ms), column=list(columns), cell=cell, uv_range=tuple(uv_range),
+                        gridder=gridder, split=split, field_id=field_id, ddid=ddid,
+                        chunk_rows=chunk_rows, epsilon=epsilon, nthreads=threads,
+                        beam_area_sr=beam_area_sr, taper=taper,
+                        progress=sys.stderr.isatty(), scheduler=scheduler, workers=workers,
+                        memory_limit=memory_limit, beam_area_model=beam_area_model)
+        if cubes[0].attrs.get("n_gap_channels"):
+            click.echo(f"warning: {cubes[0].attrs['n_gap_channels']} channel(s) missing between "
+                       f"the Measurement Sets ({cubes[0].attrs['freq_gaps']}) are left empty",
+                       err=True)
+    for output, ds in zip(outputs, cubes):
+        save_product(ds, output, "uvcube")
+        n = int((ds["weight"].values > 0).any(axis=0).sum())
+        what = f" ({ds.attrs['column']})" if len(cubes) > 1 else ""
+        click.echo(f"uv cube {output}{what}: {ds.sizes['freq']} channels, "
+                   f"{ds.sizes['u']}x{ds.sizes['v']} cells of {ds.attrs['cell_lambda']:.4g} "
+                   f"wavelengths ({n} with data)")
+
+
+def _check_outputs(outputs: tuple, columns: tuple, images: bool) -> None:
+    """One output per column (one for --image), all different."""
+    if images and len(outputs) != 1:
+        raise InputError(f"--image makes one uv cube but {len(outputs)} -o/--output are "
+                         "given; give one")
+    if not images and len(outputs) != len(columns):
+        raise InputError(f"{len(columns)} --column but {len(outputs)} -o/--output given: "
+                         "give one -o per --column, in the same order")
+    seen = set()
+    for output in outputs:
+        key = Path(output).resolve()
+        if key in seen:
+            raise InputError(f"-o {output} is given twice: give each --column its own output")
+        seen.add(key)

@@ -26,7 +26,7 @@ def _observed(ctx, param, values):
 @click.command()
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--quick", is_flag=True, help="Reduced size (18 HBA fields, 2 h at 600 s, "
-              "both fields, all three fields of view): a few minutes on 2 cores.")
+              "both fields, all three fields of view): about 3 minutes on 2 cores.")
 @click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
               help="Seed of the sky model.")
 @click.option("--field", "fields", type=click.Choice(["ncp", "3c196"]), multiple=True,

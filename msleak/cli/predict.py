@@ -46,17 +46,24 @@ def _split(_ctx, _param, value):
 
 @click.command("predict")
 @click.argument("ms", nargs=-1, required=True, type=click.Path(file_okay=False))
-@click.option("--sky", "sky", required=True, type=click.Path(dir_okay=False),
+@click.option("--sky", "sky", required=True, multiple=True, type=click.Path(dir_okay=False),
               help="Sky model: a FITS cube (Q/U[/I/V] x frequency, each voxel a point source "
-                   "at its channel; Jy/pixel or K) or a makesourcedb text file (Jy).")
-@click.option("--fov", "fov_deg", type=float, default=None,
-              help="Keep the central FOV x FOV degrees of the sky (default: all of it).")
+                   "at its channel; Jy/pixel or K) or a makesourcedb text file (Jy). "
+                   "Repeat it to predict several skies in one pass, each into the --column "
+                   "given in the same position.")
+@click.option("--fov", "fov_deg", type=float, multiple=True,
+              help="Keep the central FOV x FOV degrees of the sky (default: all of it); "
+                   "once for every sky, or once per --sky in the same order.")
 @click.option("--beam", type=click.Choice(["everybeam", "everybeam-direct", "dipole", "none"]),
               default="everybeam", show_default=True,
               help="Station beam: fast LOFAR EveryBeam model, EveryBeam called directly, an "
                    "analytic dipole, or no beam.")
-@click.option("--column", default="MODEL_DATA", show_default=True,
-              help="Column to write (created like DATA, tiled storage, if missing).")
+@click.option("--diameter", "diameter_m", type=float, default=None, metavar="M",
+              help="With --beam dipole: station diameter (m) of its Airy station factor "
+                   "[default: ANTENNA::DISH_DIAMETER].")
+@click.option("--column", "column", multiple=True,
+              help="Column to write (created like DATA, tiled storage, if missing) "
+                   "[default: MODEL_DATA]; with several --sky, one per --sky, all different.")
 @click.option("--no-centre-correction", "no_centre", is_flag=True,
               help="Keep the full beam; by default the beam at the phase centre is removed, "
                    "V' = J_p(s0)^-1 V J_q(s0)^-H, leaving the differential beam.")
@@ -79,15 +86,16 @@ def _split(_ctx, _param, value):
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
-def predict(ms, sky, fov_deg, beam, column, no_centre, interpolate_frequency, double,
-            memory_limit, overwrite_data, fields, spws, restart, progress, scheduler, workers):
+def predict(ms, sky, fov_deg, beam, diameter_m, column, no_centre, interpolate_frequency,
+            double, memory_limit, overwrite_data, fields, spws, restart, progress, scheduler,
+            workers):
     """Predict the visibilities of SKY through the station beams into MS (one or more
-    Measurement Sets, e.g. one per subband; each gets the same sky).
+    Measurement Sets, e.g. one per subband; each gets the same skies).
 
     Computes V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i (u l + v m + w (n - 1))) for
     every row, (u, v, w) = UVW / lambda from the MS (antenna 2 - antenna 1, the
-    convention DP3 uses; method.md's -2 pi i form for u_pq = u_p - u_q), per-station
-    beams and w-terms, with
+    convention DP3 uses; docs/science.md's -2 pi i form for u_pq = u_p - u_q),
+    per-station beams and w-terms, with
     B = [[I+Q, U+iV], [U-iV, I-Q]] (I = (XX+YY)/2; circular feeds analogously), then by
     default removes the beam at the phase centre. DATA and FLAG are never touched
     (unless --column DATA --overwrite-data). An interrupted run leaves the column marked
@@ -95,21 +103,41 @@ def predict(ms, sky, fov_deg, beam, column, no_centre, interpolate_frequency, do
     Time chunks of all the MSs are computed in parallel (--scheduler, --workers) and
     written by this process in time order (docs/parallel.md).
 
+    Several --sky/--column pairs (matched in order) are predicted in one pass: per chunk
+    the beam is evaluated once towards the union of the skies' directions (directions
+    with exactly the same RA and Dec, as in crops of one cube or cubes on the same pixel
+    grid, count once); each column equals a run with its sky alone (docs/predict.md).
+
     \b
     Examples:
       msleak predict obs.ms --sky sky.fits --fov 9
       msleak predict obs.ms --sky sources.skymodel --beam none --column MODEL_NOBEAM
+      msleak predict obs.ms --sky sky.fits --column MODEL_15DEG \\
+          --sky sky9.fits --column MODEL_9DEG --sky sky4.fits --column MODEL_4DEG
+      msleak predict obs.ms --sky s1.fits --column M1 --sky s2.fits --column M2 --fov 4
       msleak predict SB*.ms --sky sky.fits --scheduler tcp://head:8786
     """
     from msleak.predict.engine import predict_many
 
-    results = predict_many(ms, sky, fov_deg=fov_deg, beam=beam, column=column,
+    if diameter_m is not None and beam != "dipole":
+        raise click.BadParameter("only applies to --beam dipole", param_hint="--diameter")
+    if diameter_m is not None and not diameter_m > 0:
+        raise click.BadParameter("must be positive (m)", param_hint="--diameter")
+    if not column:
+        column = ["MODEL_DATA"] if len(sky) == 1 else []
+    results = predict_many(ms, list(sky), fov_deg=list(fov_deg) or None, beam=beam,
+                           column=list(column),
+                           diameter_m=diameter_m,
                            centre_correction=not no_centre,
                            interpolate_frequency=interpolate_frequency, double=double,
                            memory_limit=memory_limit, overwrite_data=overwrite_data,
                            fields=fields, spws=spws, restart=restart, progress=progress,
                            scheduler=scheduler, workers=workers)
     for result in results:
+        if result.skipped:
+            click.echo(f"{result.ms}: {result.column} is complete from an identical run; "
+                       "left as it is (--restart recomputes it)", err=True)
+            continue
         click.echo(f"{result.ms}: wrote {result.rows_written} rows into {result.column}"
                    f"{' (resumed run)' if result.resumed else ''} in {result.seconds:.1f} s",
                    err=True)

@@ -14,6 +14,8 @@
   ``complete`` flag and per-(field, data description) progress, updated and flushed after
   every chunk. An interrupted run thus leaves a readable MS whose column says it is
   incomplete and how far it got; rerunning the same command resumes there.
+* A run that is *refused* part-way (an input problem found while running) is undone
+  instead with a :class:`Rollback`: the MS files are put back byte for byte.
 """
 
 from __future__ import annotations
@@ -35,7 +37,9 @@ __all__ = [
     "check_column_name",
     "open_for_writing",
     "check_free_space",
+    "check_data_column",
     "ensure_data_column",
+    "Rollback",
     "write_rows",
     "read_rows",
     "read_run_state",
@@ -142,6 +146,42 @@ def _tile_shape(cell_shape: tuple[int, ...], target_bytes: int = 1 << 20) -> lis
     return [int(ncorr), int(nchan), int(max(1, target_bytes // max(per_row, 1)))]
 
 
+def check_data_column(table, name: str, like: str = "DATA") -> bool:
+    """Refuse ``name`` as a target shaped like ``like``; True if it exists already.
+
+    Parameters
+    ----------
+    table : casacore.tables.table
+        The main table (read-only is enough).
+    name : str
+        Target column.
+    like : str
+        Template column (DATA).
+
+    Raises
+    ------
+    InputError
+        If ``like`` is missing, ``name`` exists but is not a complex array column of the
+        same cell shape, or a new column would not fit on the disk.
+    """
+    cols = table.colnames()
+    if like not in cols:
+        raise InputError(f"the Measurement Set has no {like} column to take the shape from")
+    if name in cols:
+        have = table.getcoldesc(name)
+        if have.get("valueType") not in ("complex", "dcomplex") or have.get("ndim", 0) == 0:
+            raise InputError(f"column {name} exists but is not a complex visibility column "
+                             f"({have.get('valueType')}); choose another --column")
+        if (table.nrows() and table.iscelldefined(like, 0) and table.iscelldefined(name, 0)
+                and table.getcolshapestring(name, 0, 1) != table.getcolshapestring(like, 0, 1)):
+            raise InputError(f"column {name} exists with another shape than {like}; "
+                             "choose another --column")
+        return True
+    cell_bytes = 8 * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
+    check_free_space(table.name(), table.nrows() * cell_bytes + 1.1 * 2**20, f"column {name}")
+    return False
+
+
 def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
     """Create column ``name`` shaped like ``like`` (tiled) if missing; True if created.
 
@@ -157,27 +197,13 @@ def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
     Raises
     ------
     InputError
-        If ``like`` is missing, or ``name`` exists but is not a complex array column of
-        the same cell shape.
+        As :func:`check_data_column`.
     """
     from casacore.tables import makecoldesc
 
-    cols = table.colnames()
-    if like not in cols:
-        raise InputError(f"the Measurement Set has no {like} column to take the shape from")
-    desc = table.getcoldesc(like)
-    if name in cols:
-        have = table.getcoldesc(name)
-        if have.get("valueType") not in ("complex", "dcomplex") or have.get("ndim", 0) == 0:
-            raise InputError(f"column {name} exists but is not a complex visibility column "
-                             f"({have.get('valueType')}); choose another --column")
-        if (table.nrows() and table.iscelldefined(like, 0) and table.iscelldefined(name, 0)
-                and table.getcolshapestring(name, 0, 1) != table.getcolshapestring(like, 0, 1)):
-            raise InputError(f"column {name} exists with another shape than {like}; "
-                             "choose another --column")
+    if check_data_column(table, name, like):
         return False
-    cell_bytes = 8 * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
-    check_free_space(table.name(), table.nrows() * cell_bytes + 1.1 * 2**20, f"column {name}")
+    desc = table.getcoldesc(like)
     dm = table.getdminfo(like)
     fixed = "shape" in desc and len(desc.get("shape", [])) > 0 and bool(desc.get("option", 0) & 4)
     if dm.get("TYPE") in _TILED:
@@ -261,48 +287,57 @@ def read_run_state(table, column: str) -> dict | None:
     return dict(state) if isinstance(state, dict) else None
 
 
-def write_run_state(table, column: str, state: dict) -> None:
-    """Store the run record on the column and flush the table to disk.
+def write_run_state(table, states: dict[str, dict]) -> None:
+    """Store the run records of one run's columns (``{column: record}``) and flush the
+    table to disk once.
 
-    While the run is incomplete, a copy of the column's storage-manager header file is
-    kept in the MS (see :func:`repair_interrupted`); it is removed when ``state`` says
-    the run is complete.
+    While the run is incomplete, copies of its columns' storage-manager header files are
+    kept in the MS (see :func:`repair_interrupted`); they are removed when every record
+    says the run is complete.
     """
-    table.putcolkeyword(column, RUN_KEYWORD, state)
+    for column, state in states.items():
+        table.putcolkeyword(column, RUN_KEYWORD, state)
     table.flush()
-    if state.get("complete"):
+    if all(state.get("complete") for state in states.values()):
         discard_header_backup(table.name())
     else:
-        backup_headers(table, column)
+        backup_headers(table, list(states))
 
 
 #: Directory inside the MS holding header copies while a write is in progress.
 BACKUP_DIR = ".msleak_backup"
 
 
-def backup_headers(table, column: str) -> None:
+def backup_headers(table, columns: list[str]) -> None:
     """Copy the (flushed) header files that casacore rewrites in place on every flush.
 
     casacore rewrites the header file ``table.f<SEQNR>`` of a storage manager whose data
     changed (and ``table.info``) in place at every flush, so a process killed during a
     flush can leave it truncated, and then the whole MS no longer opens. Their content
     does not change while rows are only overwritten, so a copy taken once is valid for
-    the whole run. Nothing is done if a copy exists already.
+    the whole run: files copied already are kept, those of ``columns`` not yet copied are
+    added (each file appears whole or not at all).
     """
     import shutil
 
     ms = Path(table.name())
     backup = ms / BACKUP_DIR
-    if backup.is_dir():
+    names = ["table.info"] + sorted({f"table.f{int(table.getdminfo(c)['SEQNR'])}"
+                                     for c in columns})
+    missing = [n for n in names if (ms / n).is_file() and not (backup / n).is_file()]
+    if not missing:
         return
-    seqnr = int(table.getdminfo(column)["SEQNR"])
     tmp = ms / f"{BACKUP_DIR}.partial"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
-    for name in (f"table.f{seqnr}", "table.info"):
-        if (ms / name).is_file():
-            shutil.copy2(ms / name, tmp / name)
-    os.replace(tmp, backup)
+    for name in missing:
+        shutil.copy2(ms / name, tmp / name)
+    if not backup.is_dir():
+        os.replace(tmp, backup)
+        return
+    for name in missing:
+        os.replace(tmp / name, backup / name)
+    tmp.rmdir()
 
 
 def discard_header_backup(ms: str | os.PathLike) -> None:
@@ -310,6 +345,104 @@ def discard_header_backup(ms: str | os.PathLike) -> None:
     import shutil
 
     shutil.rmtree(Path(ms) / BACKUP_DIR, ignore_errors=True)
+
+
+class Rollback:
+    """Puts a Measurement Set back exactly as it was before a write run that is refused.
+
+    Made while the main table is open for writing and before the run changes anything: it
+    keeps the bytes of ``table.dat`` (column list, keywords, storage managers) and notes
+    whether a header backup (:func:`backup_headers`) exists. :meth:`save_rows` keeps the
+    old values of rows about to be overwritten in a column that existed before, in an
+    unnamed temporary file inside the MS (it vanishes with the process, so a killed run
+    leaves nothing of it). :meth:`restore` removes the column if the run created it (set
+    :attr:`created`), or writes the old values back; then it puts ``table.dat`` back and
+    removes a header backup the run made.
+
+    Parameters
+    ----------
+    table : casacore.tables.table
+        The main table, open for writing.
+    column : str
+        The column the run writes.
+    nrows : int
+        Rows the run may overwrite. When the disk has no room for their old values,
+        they are not kept (a warning says so) and a refused run leaves the rows it wrote
+        with their new values.
+    """
+
+    def __init__(self, table, column: str, nrows: int):
+        self.ms = Path(table.name())
+        self.column = column
+        self.created = False
+        self._table_dat = (self.ms / "table.dat").read_bytes()
+        self._had_backup = (self.ms / BACKUP_DIR).exists()
+        self._saved: list[tuple[np.ndarray, int, np.dtype, tuple]] = []
+        self._file = None
+        self._keep = column in table.colnames() and nrows > 0
+        if self._keep:
+            itemsize = 16 if table.getcoldesc(column).get("valueType") == "dcomplex" else 8
+            cell = int(np.prod(table.getcell("DATA", 0).shape)) if "DATA" in table.colnames() else 0
+            try:
+                check_free_space(self.ms, nrows * cell * itemsize + 1.1 * 2**20,
+                                 f"a copy of column {column} to undo a refused run")
+            except InputError as err:
+                log.warning("%s; a run refused part-way leaves the rows it wrote with their "
+                            "new values", err)
+                self._keep = False
+
+    def save_rows(self, table, rows: np.ndarray) -> None:
+        """Keep the current values of ``rows`` of the column (before they are overwritten)."""
+        if not self._keep:
+            return
+        rows = np.sort(np.asarray(rows, dtype=np.int64))
+        try:
+            old = np.ascontiguousarray(read_rows(table, self.column, rows))
+        except RuntimeError as err:  # cells without an array: no value to put back
+            log.warning("%s: column %s has rows without values (%s); a run refused part-way "
+                        "leaves the rows it wrote with their new values", self.ms, self.column,
+                        " ".join(str(err).split())[:80])
+            self._keep = False
+            self._saved.clear()
+            return
+        if self._file is None:
+            import tempfile
+
+            self._file = tempfile.TemporaryFile(dir=self.ms)
+        self._file.seek(0, os.SEEK_END)
+        self._saved.append((rows, self._file.tell(), old.dtype, old.shape))
+        self._file.write(memoryview(old).cast("B"))
+
+    def restore(self) -> None:
+        """Undo the run (its tables must be closed): the MS files are as before it."""
+        import shutil
+
+        with open_for_writing(self.ms) as table:
+            if self.created and self.column in table.colnames():
+                table.removecols([self.column])
+            for rows, offset, dtype, shape in reversed(self._saved):
+                self._file.seek(offset)
+                values = np.frombuffer(self._file.read(int(np.prod(shape)) * dtype.itemsize),
+                                       dtype=dtype).reshape(shape)
+                write_rows(table, self.column, rows, values)
+            table.flush()
+        # casacore rewrites table.dat on close, with a data-manager counter that an added
+        # and removed column leaves changed: the saved bytes are the table as it was
+        path = self.ms / "table.dat"
+        tmp = self.ms / "table.dat.msleak-restore"
+        tmp.write_bytes(self._table_dat)
+        shutil.copymode(path, tmp)
+        os.replace(tmp, path)
+        if not self._had_backup:
+            discard_header_backup(self.ms)
+        log.info("%s: put back as it was before the refused run", self.ms)
+
+    def close(self) -> None:
+        """Drop the kept values."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        self._saved.clear()
 
 
 def repair_interrupted(ms: str | os.PathLike) -> bool:

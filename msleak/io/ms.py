@@ -17,13 +17,15 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from msleak.conventions import CORR_NAMES
 from msleak.errors import InputError
 
 __all__ = [
     "SpectralWindow", "Field", "Antennas",
-    "check_ms", "open_table", "column_names", "read_spectral_windows",
+    "check_ms", "open_table", "column_names", "data_column_names", "read_spectral_windows",
     "read_data_descriptions", "read_corr_types", "read_fields", "read_antennas",
-    "read_times", "read_telescope_name", "has_lofar_tables", "iter_rows", "ms_summary",
+    "read_used_antennas", "read_times", "read_telescope_name", "has_lofar_tables", "iter_rows",
+    "ms_summary",
 ]
 
 log = logging.getLogger(__name__)
@@ -110,6 +112,14 @@ def column_names(ms: str | os.PathLike) -> list[str]:
         return list(t.colnames())
 
 
+def data_column_names(ms: str | os.PathLike) -> list[str]:
+    """Names of the main-table columns holding complex visibilities (DATA, MODEL_DATA,
+    CORRECTED_DATA, MODEL_4DEG, ...), in table order."""
+    with open_table(check_ms(ms)) as t:
+        return [c for c in t.colnames()
+                if str(t.getcoldesc(c).get("valueType", "")).lower() in ("complex", "dcomplex")]
+
+
 def read_spectral_windows(ms: str | os.PathLike) -> list[SpectralWindow]:
     """Every SPECTRAL_WINDOW row (channel centres and widths in Hz)."""
     with open_table(_subtable(check_ms(ms), "SPECTRAL_WINDOW")) as t:
@@ -157,6 +167,31 @@ def read_antennas(ms: str | os.PathLike) -> Antennas:
         diameter = np.asarray(t.getcol("DISH_DIAMETER"), dtype=float)
         stations = [str(s) for s in t.getcol("STATION")]
     return Antennas(names=names, positions=positions, diameter=diameter, stations=stations)
+
+
+def read_used_antennas(ms: str | os.PathLike, field_id: int | None = None,
+                       ddid: int | None = None) -> np.ndarray:
+    """Sorted ANTENNA row numbers that occur as ANTENNA1 or ANTENNA2 in the main-table rows
+    of ``field_id`` and ``ddid`` (all rows when None).
+
+    Placeholder ANTENNA rows (never used, flagged, at the origin) that CASA or pyuvdata
+    write are thereby left out of every per-station average or check.
+    """
+    used = np.zeros(0, dtype=np.int64)
+    for _, cols in iter_rows(ms, ["ANTENNA1", "ANTENNA2"], field_id=field_id, ddid=ddid,
+                             chunk_rows=1_000_000):
+        used = np.union1d(used, np.concatenate([cols["ANTENNA1"], cols["ANTENNA2"]]))
+    what = " and ".join(f"{name} {value}" for name, value in
+                        (("FIELD_ID", field_id), ("DATA_DESC_ID", ddid)) if value is not None)
+    if used.size == 0:
+        raise InputError(f"{ms}: no rows{' for ' + what if what else ''}, so no antennas")
+    with open_table(_subtable(check_ms(ms), "ANTENNA")) as t:
+        nant = t.nrows()
+    if used[0] < 0 or used[-1] >= nant:
+        raise InputError(f"{ms}: ANTENNA1/ANTENNA2 refer to antenna "
+                         f"{used[0] if used[0] < 0 else used[-1]}, the ANTENNA table has "
+                         f"{nant} rows")
+    return used.astype(np.int64)
 
 
 def read_telescope_name(ms: str | os.PathLike) -> str:
@@ -237,7 +272,6 @@ def ms_summary(ms: str | os.PathLike) -> str:
     ms = check_ms(ms)
     with open_table(ms) as t:
         nrow = t.nrows()
-        cols = t.colnames()
     times = read_times(ms)
     ants = read_antennas(ms)
     spws = read_spectral_windows(ms)
@@ -259,8 +293,9 @@ def ms_summary(ms: str | os.PathLike) -> str:
     for i, s in enumerate(spws):
         lines.append(f"  spw {i}          {s.nchan} channels, {s.freq[0] / 1e6:.4f}-"
                      f"{s.freq[-1] / 1e6:.4f} MHz, width {s.width[0] / 1e3:.4f} kHz")
-    lines.append(f"  correlations   {[[int(x) for x in c] for c in corr]}")
-    lines.append(f"  data columns   {', '.join(c for c in cols if c.endswith('DATA'))}")
+    lines.append("  correlations   " + "; ".join(
+        ",".join(CORR_NAMES.get(int(x), str(int(x))) for x in c) for c in corr))
+    lines.append(f"  data columns   {', '.join(data_column_names(ms))}")
     return "\n".join(lines)
 
 

@@ -1,4 +1,4 @@
-"""Fractional polarization leakage L_I from power spectra (method.md 7).
+"""Fractional polarization leakage L_I from power spectra (docs/science.md, docs/leakage.md).
 
 :mod:`~msleak.leakage.fraction`  L_I = 100 sqrt(P_I / P_P) per 2D bin and 3D voxel, masks
 :mod:`~msleak.leakage.stats`     voxel statistics, histogram peak, Pareto (b = 1) fits

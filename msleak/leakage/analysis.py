@@ -17,10 +17,11 @@ from msleak.errors import InputError
 from msleak.leakage import expected as ex
 from msleak.leakage.bootstrap import cell_groups
 from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_fraction,
-                                     leakage_map, leakage_voxels, stokes_power)
+                                     leakage_map, leakage_voxels, stokes_power, voxel_power)
 from msleak.leakage.stats import field_estimate, leakage_statistics
 
-__all__ = ["analyse", "predict", "correct", "voxel_groups", "correlation", "ModelMode", "STAT_COLUMNS"]
+__all__ = ["analyse", "predict", "correct", "voxel_groups", "correlation", "ModelMode",
+           "STAT_COLUMNS", "VOXEL_DEFINITION"]
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +32,11 @@ STAT_COLUMNS = ("mean", "median", "std", "peak", "pareto_median", "pareto_median
                 "pareto_median_hist", "peak_bin_width", "n_voxels", "n_masked",
                 "median_err", "mean_err", "pareto_median_err_iid", "ks_d", "ks_p",
                 "ks_p_eff", "n_eff", "n_groups")
+
+#: what a voxel of the statistics is (attribute ``P_P_voxels`` of the result)
+VOXEL_DEFINITION = ("full uv plane: each cell (u, tau) of power3d gives two voxels, "
+                    "P_I(u,tau)/|P~(u,tau)|^2 and P_I(u,tau)/|P~(-u,-tau)|^2 "
+                    "(power3d_P_mirror); bootstrap groups keep both")
 
 #: statistics in percent (units attribute)
 _PERCENT = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
@@ -169,6 +175,9 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         "field_estimate": est, "field_estimate_spread": spread,
         "field_estimate_data": est_data, "field_estimate_data_spread": spread_data,
         "L_I_definition": "L_I = 100 sqrt(P_I / P_P) percent, P_P = power of Q + iU",
+        "P_P_voxels": (VOXEL_DEFINITION if stats_from == "voxels" else
+                       "2D bins: P_P = bin mean over both voxels (u,tau), (-u,-tau) of "
+                       "every cell and delay (= P_Q + P_U)"),
         "stats_from": stats_from, "negative_policy": negative,
         "hist_bins": int(bins), "hist_upper_quantile": float(upper_quantile),
         "hist_binning": f"{bins} uniform bins of L_I from 0 to its {upper_quantile:g} quantile",
@@ -196,18 +205,19 @@ def voxel_groups(ds: xr.Dataset, source: str = "voxels", negative: NegativePolic
                  name: str = "PS product") -> np.ndarray:
     """Bootstrap group of every voxel that :func:`leakage_voxels` returns, same order.
 
-    ``voxels``: the uv cell of the voxel (all its delays together) or, with ``block`` > 1,
-    its block of ``block`` x ``block`` neighbouring cells (from ``u_cell``, ``v_cell`` and
-    the ``cell_lambda`` attribute, or the smallest spacing of the cell coordinates).
+    ``voxels``: the uv cell of the voxel (all its delays, and the mirrored voxels
+    (-u, -tau) of them, together) or, with ``block`` > 1, its block of ``block`` x
+    ``block`` neighbouring cells (from ``u_cell``, ``v_cell`` and the ``cell_lambda``
+    attribute, or the smallest spacing of the cell coordinates). A voxel and its mirror
+    always share a group: they share P_I, and their P~ are made of the same Q~ and U~.
     ``bins``: the k_perp column of the 2D bin.
     """
     if source == "voxels":
-        p_i = stokes_power(ds, "power3d", "I", name).transpose("delay3d", "cell").values
-        p_p = stokes_power(ds, "power3d", "P", name).transpose("delay3d", "cell").values
+        p_i, p_p = voxel_power(ds, name)
         _, mask = leakage_fraction(p_i, p_p, None, negative)
-        kpar = np.abs(np.asarray(ds["k_par3d"].values, float))[:, None]
-        kperp = np.asarray(ds["k_perp_cell"].values, float)[None, :]
-        ncell = p_i.shape[1]
+        kpar = np.abs(np.asarray(ds["k_par3d"].values, float))[None, :, None]
+        kperp = np.asarray(ds["k_perp_cell"].values, float)[None, None, :]
+        ncell = p_i.shape[-1]
         label = np.arange(ncell)
         if block > 1:
             if "u_cell" not in ds.variables or "v_cell" not in ds.variables:
@@ -219,7 +229,7 @@ def voxel_groups(ds: xr.Dataset, source: str = "voxels", negative: NegativePolic
             else:
                 log.warning("%s: the uv cells are not on a grid of %g wavelengths; the "
                             "bootstrap resamples single cells", name, cell)
-        label = np.broadcast_to(label[None, :], mask.shape)
+        label = np.broadcast_to(label[None, None, :], mask.shape)
     else:
         m = leakage_map(ds, negative, name)
         mask = m["mask"].values
@@ -390,7 +400,8 @@ def correlation(ds: xr.Dataset, stokes: str, name: str = "PS product") -> dict:
     """Voxels per independent sample of a PS product's Stokes ``stokes`` power.
 
     From the unaveraged power (``power3d`` with ``k_par3d``, ``k_perp_cell``, ``u_cell``,
-    ``v_cell``) by :func:`msleak.leakage.expected.correlation_factors` (``method`` =
+    ``v_cell``; for P the mean of each voxel and its mirror ``power3d_P_mirror``, what the
+    P bins average) by :func:`msleak.leakage.expected.correlation_factors` (``method`` =
     ``measured``); without it, by counting uv cells rather than voxels: the +tau and
     -tau voxels of a cell count once in a 2D bin (c = 2 for k_par > 0), and in a spherical
     shell also the window's delay correlation length (``method`` = ``uv-cells``).
@@ -407,6 +418,9 @@ def correlation(ds: xr.Dataset, stokes: str, name: str = "PS product") -> dict:
             p3 = stokes_power(ds, "power3d", stokes, name).transpose("delay3d", "cell").values
         except InputError:
             p3 = None
+        if p3 is not None and stokes == "P":  # the P bins average each voxel and its mirror
+            p3 = (0.5 * (p3 + ds["power3d_P_mirror"].transpose("delay3d", "cell").values)
+                  if "power3d_P_mirror" in ds.variables else None)
         if p3 is not None:
             k3 = np.abs(np.asarray(ds["k_par3d"].values, float))
             k_par = np.asarray(ds["k_par"].values, float)

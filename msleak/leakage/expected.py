@@ -1,8 +1,8 @@
 """Expected leakage in an observed field, and bias correction of an observed Stokes I PS.
 
-Expected leakage (method.md 7). With l = L_I / 100 the model fractional leakage (a scalar
-median, or a 2D map on the observed grid), the leakage power spectrum predicted for an
-observed field whose polarized power spectrum is P_P,obs is
+Expected leakage (docs/leakage.md). With l = L_I / 100 the model fractional leakage (a
+scalar median, or a 2D map on the observed grid), the leakage power spectrum predicted for
+an observed field whose polarized power spectrum is P_P,obs is
 
     P_leak = l^2 P_P,obs.
 

@@ -1,4 +1,10 @@
-"""Fractional leakage L_I = 100 sqrt(P_I / P_P) per 2D bin and per 3D voxel (method.md 7).
+"""Fractional leakage L_I = 100 sqrt(P_I / P_P) per 2D bin and per 3D voxel (docs/science.md).
+
+Voxels cover the full uv plane: P = Q + iU is not Hermitian, so every cell (u, tau) of the
+Hermitian half in ``power3d`` stands for two P voxels, (u, tau) and (-u, -tau) (the PS
+product's ``power3d_P_mirror``), each with its own P_P = |P~|^2 and the same P_I
+(Stokes I is Hermitian). Each voxel's W = P_I / P_P is then a ratio of two exponential
+variables for Gaussian I and P (:mod:`msleak.leakage.stats`).
 
 Masking convention (never a division by zero, never a NaN in the output): a bin or voxel
 gets a non-zero reason code in ``mask`` and L_I = 0 there when
@@ -35,6 +41,7 @@ __all__ = [
     "NegativePolicy",
     "leakage_fraction",
     "stokes_power",
+    "voxel_power",
     "leakage_map",
     "leakage_voxels",
     "LeakageVoxels",
@@ -114,10 +121,34 @@ def stokes_power(ds: xr.Dataset, var: str, stokes: str, source: str = "PS produc
     if "stokes" not in da.dims:
         raise InputError(f"{source}: {var!r} has no 'stokes' dimension")
     labels = [str(s) for s in np.asarray(ds["stokes"].values).ravel()]
+    if stokes in str(ds.attrs.get("stokes_missing", "")).split(","):
+        raise InputError(f"{source}: Stokes {stokes} was not measured (the MS has only the "
+                         f"correlations {ds.attrs.get('correlations', '?')}); leakage needs "
+                         "Stokes I and P, and P needs four correlations (XX,XY,YX,YY or "
+                         "RR,RL,LR,LL): use a PS product of such an MS")
     if stokes not in labels:
         raise InputError(f"{source}: no Stokes {stokes} in {var!r} (has {','.join(labels)}); "
                          f"leakage needs Stokes I and P")
     return da.isel(stokes=labels.index(stokes))
+
+
+def voxel_power(ds: xr.Dataset, name: str = "PS product") -> tuple[np.ndarray, np.ndarray]:
+    """P_I and P_P of every voxel of the full uv plane, each (2, delay3d, cell).
+
+    Index 0 holds the voxels (u, tau) of ``power3d``'s cells, index 1 their mirrors
+    (-u, -tau) (``power3d_P_mirror``); P_I is the same in both (Stokes I is Hermitian).
+    """
+    if "power3d" not in ds.variables:
+        raise InputError(f"{name}: has no 'power3d' (unaveraged 3D power); rerun "
+                         "`msleak ps`, or pass --stats-from bins")
+    p_i = stokes_power(ds, "power3d", "I", name).transpose("delay3d", "cell").values
+    p_p = stokes_power(ds, "power3d", "P", name).transpose("delay3d", "cell").values
+    if "power3d_P_mirror" not in ds.variables:
+        raise InputError(f"{name}: has no 'power3d_P_mirror' (P power of the mirrored voxels "
+                         "(-u, -tau)); rerun `msleak ps` on its delay cube, or pass "
+                         "--stats-from bins")
+    p_m = ds["power3d_P_mirror"].transpose("delay3d", "cell").values
+    return np.stack([p_i, p_i]), np.stack([p_p, p_m])
 
 
 def leakage_map(ds: xr.Dataset, negative: NegativePolicy = "mask", source: str = "PS product"
@@ -161,7 +192,8 @@ class LeakageVoxels:
     Attributes
     ----------
     L : ndarray (n_valid,)
-        L_I in percent of the valid voxels inside the selection.
+        L_I in percent of the valid voxels inside the selection (``voxels``: both voxels
+        (u, tau) and (-u, -tau) of every cell and delay of ``power3d``).
     n_selected : int
         Voxels inside the k selection (valid + masked).
     masked : dict
@@ -191,25 +223,22 @@ def leakage_voxels(ds: xr.Dataset, source: Literal["voxels", "bins"] = "voxels",
                    k_par_range: tuple[float, float] | None = None,
                    k_perp_range: tuple[float, float] | None = None,
                    name: str = "PS product") -> LeakageVoxels:
-    """L_I of every voxel of ``power3d`` (before averaging), or of every 2D bin.
+    """L_I of every voxel of the full uv plane (before averaging), or of every 2D bin.
 
     Parameters
     ----------
     ds : xarray.Dataset
         A PS product (docs/products.md "ps").
     source : {"voxels", "bins"}
-        ``voxels`` uses ``power3d`` (stokes, delay3d, cell); ``bins`` the 2D ``power``.
+        ``voxels`` uses ``power3d`` (stokes, delay3d, cell) and ``power3d_P_mirror``
+        (:func:`voxel_power`: two P voxels per cell and delay); ``bins`` the 2D ``power``.
     k_par_range, k_perp_range : (float, float), optional
         Keep only voxels with |k_par| and k_perp inside these closed ranges (Mpc^-1).
     """
     if source == "voxels":
-        if "power3d" not in ds.variables:
-            raise InputError(f"{name}: has no 'power3d' (unaveraged 3D power); rerun "
-                             "`msleak ps`, or pass --stats-from bins")
-        p_i = stokes_power(ds, "power3d", "I", name).transpose("delay3d", "cell").values
-        p_p = stokes_power(ds, "power3d", "P", name).transpose("delay3d", "cell").values
-        kpar = np.abs(_coord(ds, ("k_par3d",), "delay3d", name))[:, None]
-        kperp = _coord(ds, ("k_perp_cell",), "cell", name)[None, :]
+        p_i, p_p = voxel_power(ds, name)
+        kpar = np.abs(_coord(ds, ("k_par3d",), "delay3d", name))[None, :, None]
+        kperp = _coord(ds, ("k_perp_cell",), "cell", name)[None, None, :]
         L, mask = leakage_fraction(p_i, p_p, None, negative)
     elif source == "bins":
         m = leakage_map(ds, negative, name)

@@ -94,7 +94,10 @@ def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
             f"| {int(result['n_voxels'].values[i])} ({g('n_eff', '.0f')}) "
             f"| {int(result['n_masked'].values[i])} |")
     n = result.sizes["input"]
-    unit = ("voxel of the unaveraged 3D power" if a["stats_from"] == "voxels"
+    unit = ("voxel of the unaveraged 3D power on the full uv plane (P = Q + iU is not "
+            "Hermitian: each uv cell and delay (u, tau) gives two voxels, (u, tau) and "
+            "(-u, -tau), each with its own P_P = |P~|^2 and the same P_I; the bootstrap "
+            "draws both together)" if a["stats_from"] == "voxels"
             else "2D (k_par, k_perp) bin")
     lines += [
         "",

@@ -1,4 +1,4 @@
-"""Statistics of the voxel distribution of L_I, and its Pareto model (method.md 7).
+"""Statistics of the voxel distribution of L_I, and its Pareto model (docs/science.md).
 
 Model. If Stokes I and P = Q + iU of a voxel are independent circular complex Gaussians
 of variances sigma_I^2 and sigma_P^2, then P_I and P_P are exponential and their ratio
@@ -11,6 +11,10 @@ a Pareto distribution of shape b = 1 (``scipy.stats.pareto`` with ``b = 1``,
 L_I is 100 a. In L_I the density is f(l) = 2 l A^2 / (l^2 + A^2)^2 with A = 100 a: the
 mode is A / sqrt(3), the mean is A pi / 2 and the variance is infinite (the sample
 standard deviation is reported because the paper does, but it does not converge).
+This needs P_P = |P~|^2 of one voxel of the full uv plane (:mod:`msleak.leakage.fraction`):
+the symmetric P_Q + P_U = (|P~(u, tau)|^2 + |P~(-u, -tau)|^2) / 2 is Gamma distributed
+(shape 2), W then has the CDF 1 - (1 + w / (2 a^2))^-2 and its median L_I is
+100 a sqrt(2 (sqrt 2 - 1)) = 0.91 x 100 a.
 
 Fit. We fit loc and scale (b fixed to 1) by maximum likelihood to the voxel sample
 itself, not to a histogram, because it uses every voxel and needs no binning choice. The
@@ -26,7 +30,7 @@ that its answer satisfies the support condition and the score equation, and othe
 solve the score equation with a bracketing root finder (which always converges). Under
 the model the standard error of the fitted median a^2 is a^2 sqrt(3 / n), so the relative
 error of the median L_I is sqrt(3 / n) / 2 (0.27 % for 10^5 voxels). A binned
-maximum-likelihood fit to the histogram (method.md's wording) is provided as
+maximum-likelihood fit to the histogram (the paper's wording) is provided as
 :func:`fit_pareto_histogram` for comparison (its median is stored as
 ``pareto_median_hist``): on 20 realisations of 10^5 model voxels the maximum-likelihood
 median scattered by 0.25 % with no measurable bias, the binned (Poisson) histogram fit by

@@ -87,5 +87,7 @@ def plot_beam_maps(ds, path: str | Path, *, title: str | None = None, pdf: bool 
                  f"MHz, normalised to the phase centre "
                  f"(RA {ds.attrs.get('phase_centre_ra_deg', 0):.1f} deg, "
                  f"Dec {ds.attrs.get('phase_centre_dec_deg', 0):.1f} deg)")
+    if not invariant and ds.attrs.get("qu_basis_description"):
+        title += f"\n{ds.attrs['qu_basis_description']}"
     fig.suptitle(title, fontsize=11)
     return save_figure(fig, path, pdf=pdf, dpi=150)

@@ -30,6 +30,11 @@ numba kernel runs them in parallel with one single-threaded BLAS call each. Per-
 phases are evaluated once per block of channels and advanced by a constant complex step
 per channel when the channels are evenly spaced (else evaluated per channel).
 
+Several skies whose directions are among the same set (fields of view cropped from one
+cube, other realisations on the same pixel grid) share the phases and the matrices
+A_p(s) (:func:`predict_grams`); each sky has its own W, Z and Gram product, computed
+with exactly the operations of a run with that sky alone.
+
 Everything is computed in the *linear* feed basis (X, Y), the basis the beam models return
 Jones matrices in; :func:`linear_to_circular` converts the visibilities for circular feeds.
 Phases are always evaluated in float64; the matrices Z and V are in the output precision.
@@ -38,6 +43,7 @@ Phases are always evaluated in float64; the matrices Z and V are in the output p
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numba as nb
 import numpy as np
@@ -51,6 +57,8 @@ __all__ = [
     "brightness_factors",
     "column_layout",
     "predict_gram",
+    "predict_grams",
+    "scratch_bytes",
     "gram_to_matrix",
     "gather_rows",
     "linear_to_circular",
@@ -162,10 +170,12 @@ def column_layout(sign: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 @nb.njit(parallel=True, nogil=True, cache=True)
-def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, w, colmap, kpos, kneg, gram):
+def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, kpos,
+            kneg, gram):
     nt, nst = xyz.shape[0], xyz.shape[1]
     ndir = lmn1.shape[0]
     nchan = freq.shape[0]
+    nsky = ptr.shape[0] - 1
     n2 = 2 * nst
     nblk = (nchan + block - 1) // block
     two_pi_c = 2.0 * math.pi / 299_792_458.0
@@ -188,10 +198,11 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, w, colmap, kpos,
                 phase[p, s] = complex(math.cos(g * freq[c0]), math.sin(g * freq[c0]))
                 if regular:
                     step[p, s] = complex(math.cos(g * df), math.sin(g * df))
-        # Z^T as a C-order (2 nst, 2 ndir) array = Fortran (2 ndir, 2 nst): rows of one
-        # station are written contiguously; herk('U', 'C') then gives Z Z^H (transposed)
-        kmax = 2 * ndir
-        z = np.empty((n2, kmax), dtype=gram.dtype)
+        # Z_k^T of sky k as a C-order (2 nst, 2 ndir_k) array = Fortran (2 ndir_k, 2 nst),
+        # stored from offset 2 nst * 2 ptr[k] of z: rows of one station are written
+        # contiguously; herk('U', 'C') then gives Z_k Z_k^H (transposed)
+        z = np.empty(n2 * 2 * ptr[nsky], dtype=gram.dtype)
+        a = np.empty((ndir, 4), dtype=np.complex128)  # A_p(s) = phase * J_p(s), one station
         uplo = np.empty(1, dtype=np.uint8)
         uplo[0] = 85  # 'U'
         trans = np.empty(1, dtype=np.uint8)
@@ -200,7 +211,6 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, w, colmap, kpos,
         n_arr[0] = n2
         k_arr = np.empty(1, dtype=np.int32)
         lda = np.empty(1, dtype=np.int32)
-        lda[0] = kmax
         single = gram.itemsize == 8
         alpha32 = np.empty(1, dtype=np.float32)
         beta32 = np.ones(1, dtype=np.float32)
@@ -215,65 +225,80 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, w, colmap, kpos,
                         else:
                             phase[p, s] = complex(math.cos(geo[p, s] * freq[c]),
                                                   math.sin(geo[p, s] * freq[c]))
-            kp = kpos[c]
-            kk = kp + kneg[c]
-            if kk == 0:
-                continue
             jc = c if jones.shape[2] > 1 else 0
             for p in range(nst):
                 jp = p if jones.shape[0] > 1 else 0
-                zx = z[2 * p]
-                zy = z[2 * p + 1]
                 for s in range(ndir):
-                    col0 = colmap[c, s, 0]
-                    col1 = colmap[c, s, 1]
                     e = phase[p, s]
                     if have_jones:
-                        a00 = e * jones[jp, jt, jc, s, 0, 0]
-                        a01 = e * jones[jp, jt, jc, s, 0, 1]
-                        a10 = e * jones[jp, jt, jc, s, 1, 0]
-                        a11 = e * jones[jp, jt, jc, s, 1, 1]
+                        a[s, 0] = e * jones[jp, jt, jc, s, 0, 0]
+                        a[s, 1] = e * jones[jp, jt, jc, s, 0, 1]
+                        a[s, 2] = e * jones[jp, jt, jc, s, 1, 0]
+                        a[s, 3] = e * jones[jp, jt, jc, s, 1, 1]
                     else:
-                        a00 = e
-                        a01 = 0j
-                        a10 = 0j
-                        a11 = e
-                    if col0 >= 0:
-                        w00 = w[s, c, 0, 0]
-                        w10 = w[s, c, 1, 0]
-                        zx[col0] = a00 * w00 + a01 * w10
-                        zy[col0] = a10 * w00 + a11 * w10
-                    if col1 >= 0:
-                        w01 = w[s, c, 0, 1]
-                        w11 = w[s, c, 1, 1]
-                        zx[col1] = a00 * w01 + a01 * w11
-                        zy[col1] = a10 * w01 + a11 * w11
-            out = gram[t, c]
-            for sgn in range(2):
-                k0 = 0 if sgn == 0 else kp
-                k1 = kp if sgn == 0 else kk
-                if k1 == k0:
+                        a[s, 0] = e
+                        a[s, 1] = 0j
+                        a[s, 2] = 0j
+                        a[s, 3] = e
+                for k in range(nsky):
+                    if kpos[k, c] + kneg[k, c] == 0:
+                        continue
+                    kmax = 2 * (ptr[k + 1] - ptr[k])
+                    row = n2 * 2 * ptr[k] + 2 * p * kmax
+                    zx = z[row:row + kmax]
+                    zy = z[row + kmax:row + 2 * kmax]
+                    for j in range(ptr[k], ptr[k + 1]):
+                        s = dirs[j]
+                        col0 = colmap[c, j, 0]
+                        col1 = colmap[c, j, 1]
+                        a00, a01, a10, a11 = a[s, 0], a[s, 1], a[s, 2], a[s, 3]
+                        if col0 >= 0:
+                            w00 = w[j, c, 0, 0]
+                            w10 = w[j, c, 1, 0]
+                            zx[col0] = a00 * w00 + a01 * w10
+                            zy[col0] = a10 * w00 + a11 * w10
+                        if col1 >= 0:
+                            w01 = w[j, c, 0, 1]
+                            w11 = w[j, c, 1, 1]
+                            zx[col1] = a00 * w01 + a01 * w11
+                            zy[col1] = a10 * w01 + a11 * w11
+            for k in range(nsky):
+                kp = kpos[k, c]
+                kk = kp + kneg[k, c]
+                if kk == 0:
                     continue
-                k_arr[0] = k1 - k0
-                zptr = z.ctypes.data + k0 * z.itemsize
-                if single:
-                    alpha32[0] = 1.0 if sgn == 0 else -1.0
-                    _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
-                           k_arr.ctypes.data, alpha32.ctypes.data, zptr,
-                           lda.ctypes.data, beta32.ctypes.data, out.ctypes.data,
-                           n_arr.ctypes.data)
-                else:
-                    alpha64[0] = 1.0 if sgn == 0 else -1.0
-                    _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
-                           k_arr.ctypes.data, alpha64.ctypes.data, zptr,
-                           lda.ctypes.data, beta64.ctypes.data, out.ctypes.data,
-                           n_arr.ctypes.data)
+                lda[0] = 2 * (ptr[k + 1] - ptr[k])
+                base = z.ctypes.data + n2 * 2 * ptr[k] * z.itemsize
+                out = gram[k, t, c]
+                for sgn in range(2):
+                    k0 = 0 if sgn == 0 else kp
+                    k1 = kp if sgn == 0 else kk
+                    if k1 == k0:
+                        continue
+                    k_arr[0] = k1 - k0
+                    zptr = base + k0 * z.itemsize
+                    if single:
+                        alpha32[0] = 1.0 if sgn == 0 else -1.0
+                        _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                               k_arr.ctypes.data, alpha32.ctypes.data, zptr,
+                               lda.ctypes.data, beta32.ctypes.data, out.ctypes.data,
+                               n_arr.ctypes.data)
+                    else:
+                        alpha64[0] = 1.0 if sgn == 0 else -1.0
+                        _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                               k_arr.ctypes.data, alpha64.ctypes.data, zptr,
+                               lda.ctypes.data, beta64.ctypes.data, out.ctypes.data,
+                               n_arr.ctypes.data)
 
 
-def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
-                 freq: np.ndarray, w: np.ndarray, sign: np.ndarray,
-                 dtype=np.complex64) -> np.ndarray:
-    """Visibility matrices of all station pairs for a block of times and channels.
+def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
+                  freq: np.ndarray, skies: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                  dtype=np.complex64) -> np.ndarray:
+    """Visibility matrices of all station pairs for several skies sharing directions.
+
+    The per-station matrices A_p(s) = J_p(s) exp(-2 pi i x_p . (l, m, n - 1) / lambda) are
+    built once per (time, channel) for every direction of ``lmn1`` and used by every sky
+    that has that direction; each sky then costs its own Z = A W and Gram product.
 
     Parameters
     ----------
@@ -289,16 +314,20 @@ def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
         (l, m, n - 1) of the directions (:func:`lmn_minus_one`).
     freq : (nchan,) float64
         Channel frequencies (Hz).
-    w, sign : from :func:`brightness_factors`, shapes (ndir, nchan, 2, 2) and (ndir, nchan, 2).
+    skies : sequence of (index, w, sign)
+        Per sky: ``index`` (ndir_k,) int, its directions as rows of ``lmn1`` (and of the
+        direction axis of ``jones``); ``w``, ``sign`` of those directions from
+        :func:`brightness_factors`, shapes (ndir_k, nchan, 2, 2) and (ndir_k, nchan, 2).
     dtype : complex64 or complex128
         Precision of the matrix products and of the result.
 
     Returns
     -------
-    (ntime, nchan, 2 nstation, 2 nstation) complex
-        ``G`` whose lower triangle (i >= j) is that of the Hermitian visibility matrix V
-        (row/column 2 p + a is station p, feed a); the strict upper triangle is not set.
-        Use :func:`gather_rows` or :func:`gram_to_matrix` to read it.
+    (nsky, ntime, nchan, 2 nstation, 2 nstation) complex
+        Per sky ``G`` whose lower triangle (i >= j) is that of the Hermitian visibility
+        matrix V (row/column 2 p + a is station p, feed a); the strict upper triangle is
+        not set. Use :func:`gather_rows` or :func:`gram_to_matrix` to read it. A sky's
+        result does not depend on the other skies.
     """
     dtype = np.dtype(dtype)
     if dtype not in (np.complex64, np.complex128):
@@ -308,28 +337,74 @@ def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
     freq = np.ascontiguousarray(freq, dtype=np.float64)
     nt, nst = xyz.shape[:2]
     nchan = freq.size
-    if jones is None:
-        jones_arr = np.zeros((1, 1, 1, 1, 2, 2), dtype=dtype)
-        have = False
-    else:
-        jones_arr = np.asarray(jones)
-        have = True
-        if jones_arr.ndim != 6 or jones_arr.shape[-2:] != (2, 2) or jones_arr.shape[3] != lmn1.shape[0]:
-            raise ValueError(f"jones has shape {jones_arr.shape}, expected "
-                             f"(nstation, ntime, nchan, {lmn1.shape[0]}, 2, 2)")
-        for axis, n in ((0, nst), (1, nt), (2, nchan)):
-            if jones_arr.shape[axis] not in (1, n):
-                raise ValueError(f"jones axis {axis} has length {jones_arr.shape[axis]}, "
-                                 f"expected 1 or {n}")
-    colmap, kpos, kneg = column_layout(sign)
-    w = np.ascontiguousarray(w, dtype=np.complex128)
-    gram = np.zeros((nt, nchan, 2 * nst, 2 * nst), dtype=dtype)
+    jones_arr, have = _check_jones(jones, nst, nt, nchan, lmn1.shape[0], dtype)
+    dirs, ptr, w, colmap, kpos, kneg = _pack_skies(skies, lmn1.shape[0], nchan)
+    gram = np.zeros((len(skies), nt, nchan, 2 * nst, 2 * nst), dtype=dtype)
     regular = _regular_spacing(freq)
     nthreads = nb.get_num_threads()
     block = max(1, min(nchan, -(-nt * nchan // (4 * nthreads)))) if regular else 1
     with single_threaded_blas():
-        _kernel(jones_arr, have, xyz, lmn1, freq, regular, block, w, colmap, kpos, kneg, gram)
+        _kernel(jones_arr, have, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, kpos,
+                kneg, gram)
     return gram
+
+
+def scratch_bytes(nstation: int, ndir: int, ndir_skies: int, dtype) -> int:
+    """Memory :func:`predict_grams` allocates besides its result (bytes, all threads):
+    per thread the phases of ``ndir`` directions, one station's A matrices, and the Z of
+    skies with ``ndir_skies`` directions in all."""
+    per_thread = (40 * nstation * ndir + 64 * ndir
+                  + 4 * nstation * ndir_skies * np.dtype(dtype).itemsize)
+    return nb.get_num_threads() * per_thread
+
+
+def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
+                 freq: np.ndarray, w: np.ndarray, sign: np.ndarray,
+                 dtype=np.complex64) -> np.ndarray:
+    """:func:`predict_grams` of one sky whose directions are all of ``lmn1`` (in order).
+
+    Returns
+    -------
+    (ntime, nchan, 2 nstation, 2 nstation) complex
+    """
+    index = np.arange(np.shape(lmn1)[0])
+    return predict_grams(jones, xyz, lmn1, freq, [(index, w, sign)], dtype=dtype)[0]
+
+
+def _check_jones(jones, nst: int, nt: int, nchan: int, ndir: int, dtype):
+    """(jones array, have_jones) for the kernel; a dummy identity when ``jones`` is None."""
+    if jones is None:
+        return np.zeros((1, 1, 1, 1, 2, 2), dtype=dtype), False
+    jones_arr = np.asarray(jones)
+    if jones_arr.ndim != 6 or jones_arr.shape[-2:] != (2, 2) or jones_arr.shape[3] != ndir:
+        raise ValueError(f"jones has shape {jones_arr.shape}, expected "
+                         f"(nstation, ntime, nchan, {ndir}, 2, 2)")
+    for axis, n in ((0, nst), (1, nt), (2, nchan)):
+        if jones_arr.shape[axis] not in (1, n):
+            raise ValueError(f"jones axis {axis} has length {jones_arr.shape[axis]}, "
+                             f"expected 1 or {n}")
+    return jones_arr, True
+
+
+def _pack_skies(skies, ndir: int, nchan: int):
+    """The skies' directions, factors and column layouts concatenated sky after sky."""
+    index = [np.asarray(i, dtype=np.int64).reshape(-1) for i, _, _ in skies]
+    ptr = np.zeros(len(skies) + 1, dtype=np.int64)
+    ptr[1:] = np.cumsum([i.size for i in index])
+    dirs = np.concatenate(index) if index else np.zeros(0, dtype=np.int64)
+    if dirs.size and (dirs.min() < 0 or dirs.max() >= ndir):
+        raise ValueError(f"sky direction index out of range 0..{ndir - 1}")
+    w = np.zeros((dirs.size, nchan, 2, 2), dtype=np.complex128)
+    colmap = np.full((nchan, dirs.size, 2), -1, dtype=np.int32)
+    kpos = np.zeros((len(skies), nchan), dtype=np.int64)
+    kneg = np.zeros((len(skies), nchan), dtype=np.int64)
+    for k, (_, wk, sign) in enumerate(skies):
+        if np.shape(wk) != (index[k].size, nchan, 2, 2) or np.shape(sign) != (index[k].size, nchan, 2):
+            raise ValueError(f"sky {k}: w and sign must have shapes ({index[k].size}, {nchan}, "
+                             f"2, 2) and ({index[k].size}, {nchan}, 2)")
+        w[ptr[k]:ptr[k + 1]] = wk
+        colmap[:, ptr[k]:ptr[k + 1]], kpos[k], kneg[k] = column_layout(sign)
+    return dirs, ptr, w, colmap, kpos, kneg
 
 
 def _regular_spacing(freq: np.ndarray) -> bool:

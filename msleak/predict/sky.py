@@ -6,6 +6,11 @@ source at its own channel, method.md 3); a makesourcedb file gives parametric sp
 Sources sharing a direction are merged (their Stokes add), sources without flux on the
 channels are dropped, and so are directions 90 deg or more from the phase centre (they
 would need n <= 0: not in the visible hemisphere of the phase centre).
+
+Several skies predicted in one run form a :class:`SkySet`: the union of their directions
+(a direction shared by several skies, matched by exact (ra, dec) equality, appears once:
+fields of view cropped from one cube, other realisations on the same pixel grid), on
+which the beam is evaluated once, and each sky's rows in it.
 """
 
 from __future__ import annotations
@@ -13,12 +18,13 @@ from __future__ import annotations
 import logging
 import os
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
 from msleak.predict.kernels import brightness_factors, lmn_minus_one
 
-__all__ = ["SkyComponents", "sky_components", "prepare_sources"]
+__all__ = ["SkyComponents", "SkySet", "sky_components", "sky_set", "prepare_sources"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +56,61 @@ class SkyComponents:
     @property
     def nbytes(self) -> int:
         return int(self.lmn1.nbytes + self.iquv.nbytes + self.w.nbytes + self.sign.nbytes)
+
+
+@dataclass(frozen=True)
+class SkySet:
+    """Several skies of one (field, spectral window) and the union of their directions.
+
+    Attributes
+    ----------
+    ra, dec : (ndir,) rad
+        Every direction of any sky once, in order of first appearance (the first sky's
+        directions first, in its order).
+    lmn1 : (ndir, 3)
+        (l, m, n - 1) about the phase centre; the rows of sky k are ``skies[k].lmn1``.
+    skies : tuple of SkyComponents
+    index : tuple of (ndir_k,) int64
+        Rows of ``ra``, ``dec``, ``lmn1`` holding the directions of ``skies[k]``, in order.
+    """
+
+    ra: np.ndarray
+    dec: np.ndarray
+    lmn1: np.ndarray
+    skies: tuple
+    index: tuple
+
+    @property
+    def ndir(self) -> int:
+        return int(self.ra.size)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.lmn1.nbytes + sum(s.nbytes for s in self.skies)
+                   + sum(i.nbytes for i in self.index))
+
+
+def sky_set(skies: Sequence[SkyComponents]) -> SkySet:
+    """The union of the skies' directions, exact (ra, dec) matches merged (pure function).
+
+    One sky gives its own directions in its own order (``index`` = 0..ndir-1).
+    """
+    skies = tuple(skies)
+    keys = np.concatenate([np.stack([s.ra, s.dec], axis=1) for s in skies]
+                          ) if skies else np.zeros((0, 2))
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # unique directions by first appearance
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    rows_all = rank[np.asarray(inverse, dtype=np.int64).ravel()]
+    bounds = np.cumsum([0] + [s.ndir for s in skies])
+    index = tuple(rows_all[bounds[k]:bounds[k + 1]] for k in range(len(skies)))
+    union = keys[first[order]]
+    lmn1 = np.zeros((union.shape[0], 3))
+    for sky, rows in zip(skies, index):
+        lmn1[rows] = sky.lmn1
+    return SkySet(ra=union[:, 0].copy(), dec=union[:, 1].copy(), lmn1=lmn1, skies=skies,
+                  index=index)
 
 
 def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: float,

@@ -7,31 +7,70 @@ The factorised predict needs, for every time, station coordinates x_p (m) with
 so that exp(+2 pi i uvw_pq . s / lambda) = exp(-2 pi i x_p . s / lambda) exp(+2 pi i x_q . s / lambda)
 (the MS convention: antenna 2 minus antenna 1; see :mod:`msleak.predict.kernels` for the
 sign of the phase). Such x_p exist for any MS whose UVW were computed from antenna
-positions (casacore, CASA, DP3, msleak simulate). The coordinates are fitted by least
-squares over all cross-correlation rows of one time (the gauge, a common offset per
-connected group of stations, cancels in every baseline) and the fit residual is checked,
-so a UVW column that is not antenna-based is refused instead of silently mispredicted.
+positions (casacore, CASA, DP3, msleak simulate), to the precision the UVW were stored
+with (float32 in an MS converted from uvfits). The coordinates are fitted by least squares
+over the cross-correlation rows of one time (the gauge, a common offset per connected
+group of stations, cancels in every baseline); rows the fit does not reproduce within a
+tolerance are dropped from the fit, worst first, and reported, so that predict computes
+them from their own UVW instead (:mod:`msleak.predict.baselines`).
+
+The tolerance is a phase error (:func:`uvw_tolerance`): |uvw_row - (x_q - x_p)| = d changes
+the phase of a source at (l, m, n - 1) by 2 pi nu / c |d . (l, m, n - 1)|, at most
+2 pi nu_max d r_max / c with r_max the largest |(l, m, n - 1)| of the sky.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from msleak.errors import InputError
+from msleak.predict.kernels import C_LIGHT
 
-__all__ = ["station_coordinates", "UVW_TOLERANCE_M"]
+__all__ = ["station_coordinates", "uvw_tolerance", "PHASE_TOLERANCE_RAD"]
 
-#: Largest accepted |uvw_row - (x_q - x_p)| (m): 0.1 mm is a phase error below 1e-3 rad
-#: up to 500 MHz even at the horizon.
-UVW_TOLERANCE_M = 1e-4
+#: Largest phase error (rad) the per-station factorisation may give any source at any
+#: channel: each source's term of a visibility moves by at most 1e-3 of its flux (a pure
+#: phase error, its amplitude is unchanged). Float32 UVW (an MS converted from uvfits)
+#: are rounded by up to 6e-8 of the baseline length, 5.7e-4 rad at 150 MHz for a 3 km
+#: baseline and a source at the horizon: within it (docs/predict.md).
+PHASE_TOLERANCE_RAD = 1e-3
+
+#: Refits per time slot, each without the rows that fit worst.
+_MAX_REFITS = 12
 
 #: pseudo-inverses of baseline-graph Laplacians, keyed by the (ANTENNA1, ANTENNA2) arrays
 _PINV_CACHE: dict[bytes, np.ndarray] = {}
 
 
+def uvw_tolerance(freq_max_hz: float, lmn1: np.ndarray,
+                  phase_rad: float = PHASE_TOLERANCE_RAD) -> float:
+    """Largest |uvw_row - (x_q - x_p)| (m) giving at most ``phase_rad`` of phase error.
+
+    Parameters
+    ----------
+    freq_max_hz : float
+        Highest channel frequency predicted (Hz).
+    lmn1 : (ndir, 3) float
+        (l, m, n - 1) of the sky's directions; the farthest sets the bound.
+    phase_rad : float
+
+    Returns
+    -------
+    float
+        phase_rad c / (2 pi freq_max r_max), r_max = max |(l, m, n - 1)|; infinite when
+        every direction is the phase centre (r_max = 0: the phase does not depend on UVW).
+    """
+    lmn1 = np.asarray(lmn1, dtype=np.float64).reshape(-1, 3)
+    reach = float(np.sqrt((lmn1 ** 2).sum(axis=1)).max()) if lmn1.size else 0.0
+    if reach == 0.0:
+        return math.inf
+    return phase_rad * C_LIGHT / (2.0 * math.pi * float(freq_max_hz) * reach)
+
+
 def station_coordinates(tidx: np.ndarray, p: np.ndarray, q: np.ndarray, uvw: np.ndarray,
-                        ntime: int, nstation: int, *,
-                        tolerance_m: float = UVW_TOLERANCE_M) -> np.ndarray:
+                        ntime: int, nstation: int, *, tolerance_m: float
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Fit per-station coordinates x_p(t) to the rows' UVW (uvw_row = x_q - x_p).
 
     Parameters
@@ -44,57 +83,72 @@ def station_coordinates(tidx: np.ndarray, p: np.ndarray, q: np.ndarray, uvw: np.
         The rows' UVW (m) as stored in the MS.
     ntime, nstation : int
     tolerance_m : float
-        Largest accepted residual (m).
+        Largest |uvw_row - (x_q - x_p)| (m) of a row the coordinates stand for
+        (:func:`uvw_tolerance`).
 
     Returns
     -------
-    (ntime, nstation, 3) float64
+    xyz : (ntime, nstation, 3) float64
         Station coordinates (m); stations without cross-correlations at a time get 0.
-
-    Raises
-    ------
-    InputError
-        If the UVW of some time are not the differences of per-station coordinates.
+    off : (nrow,) bool
+        Rows whose UVW the coordinates do not reproduce within ``tolerance_m``
+        (autocorrelations: |uvw| > ``tolerance_m``; non-finite UVW); they need their own
+        UVW.
     """
     tidx = np.asarray(tidx, dtype=np.int64)
     p = np.asarray(p, dtype=np.int64)
     q = np.asarray(q, dtype=np.int64)
     uvw = np.asarray(uvw, dtype=np.float64)
     xyz = np.zeros((ntime, nstation, 3))
-    cross = p != q
+    off = np.zeros(tidx.size, dtype=bool)
     order = np.argsort(tidx, kind="stable")
     bounds = np.searchsorted(tidx[order], np.arange(ntime + 1))
-    worst = 0.0
     for t in range(ntime):
         rows = order[bounds[t]:bounds[t + 1]]
-        rows = rows[cross[rows]]
-        if rows.size == 0:
-            continue
-        pt, qt = p[rows], q[rows]
-        # normal equations of uvw_row = x_q - x_p: the graph Laplacian L x = M^T uvw;
-        # its pseudo-inverse fixes the gauge (zero mean per connected group)
-        key = pt.tobytes() + qt.tobytes()
-        pinv = _PINV_CACHE.get(key)
-        if pinv is None:
-            lap = np.zeros((nstation, nstation))
-            np.add.at(lap, (pt, pt), 1.0)
-            np.add.at(lap, (qt, qt), 1.0)
-            np.add.at(lap, (pt, qt), -1.0)
-            np.add.at(lap, (qt, pt), -1.0)
-            pinv = np.linalg.pinv(lap, rcond=1e-9, hermitian=True)
-            if len(_PINV_CACHE) > 64:
-                _PINV_CACHE.clear()
-            _PINV_CACHE[key] = pinv
-        rhs = np.zeros((nstation, 3))
-        np.add.at(rhs, qt, uvw[rows])
-        np.add.at(rhs, pt, -uvw[rows])
-        x = pinv @ rhs
-        resid = np.abs(x[qt] - x[pt] - uvw[rows]).max()
-        worst = max(worst, float(resid))
-        xyz[t] = x
-    if worst > tolerance_m:
-        raise InputError(
-            f"the MS UVW column is not antenna-based (baseline UVW differ from differences of "
-            f"per-station coordinates by up to {worst:.3g} m > {tolerance_m:g} m); msleak's "
-            "factorised predict needs UVW computed from antenna positions")
-    return xyz
+        if rows.size:
+            xyz[t], off[rows] = _fit_one_time(p[rows], q[rows], uvw[rows], nstation,
+                                              tolerance_m)
+    return xyz, off
+
+
+def _fit_one_time(p, q, uvw, nstation, tolerance_m):
+    """Coordinates (nstation, 3) and the rows beyond ``tolerance_m``, for one time.
+
+    Least squares over the cross-correlations; while some fitted row is off by more than
+    the tolerance, the rows off by more than half the worst (and the tolerance) are left
+    out and the rest refitted. A spanning tree of rows is always fitted exactly, so only
+    rows inconsistent with the others end up off."""
+    use = (p != q) & np.isfinite(uvw).all(axis=1)
+    x = np.zeros((nstation, 3))
+    for _ in range(_MAX_REFITS):
+        if not use.any():
+            break
+        x = _least_squares(p[use], q[use], uvw[use], nstation)
+        resid = np.sqrt(((x[q] - x[p] - uvw) ** 2).sum(axis=1))
+        worst = float(resid[use].max())
+        if worst <= tolerance_m:
+            break
+        use &= resid < max(tolerance_m, 0.5 * worst)
+    resid = np.sqrt(((x[q] - x[p] - uvw) ** 2).sum(axis=1))
+    return x, ~(resid <= tolerance_m)
+
+
+def _least_squares(p, q, uvw, nstation):
+    """x minimising sum |x_q - x_p - uvw|^2, zero mean per connected group of stations."""
+    # normal equations: the graph Laplacian L x = M^T uvw; its pseudo-inverse fixes the gauge
+    key = p.tobytes() + q.tobytes()
+    pinv = _PINV_CACHE.get(key)
+    if pinv is None:
+        lap = np.zeros((nstation, nstation))
+        np.add.at(lap, (p, p), 1.0)
+        np.add.at(lap, (q, q), 1.0)
+        np.add.at(lap, (p, q), -1.0)
+        np.add.at(lap, (q, p), -1.0)
+        pinv = np.linalg.pinv(lap, rcond=1e-9, hermitian=True)
+        if len(_PINV_CACHE) > 64:
+            _PINV_CACHE.clear()
+        _PINV_CACHE[key] = pinv
+    rhs = np.zeros((nstation, 3))
+    np.add.at(rhs, q, uvw)
+    np.add.at(rhs, p, -uvw)
+    return pinv @ rhs

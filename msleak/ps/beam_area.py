@@ -37,28 +37,43 @@ def beam_area_from_power(power: np.ndarray, response: np.ndarray, l: np.ndarray,
 
 
 def ms_beam_area(ms: str | Path, *, model: str, gridder: str, taper: str, cell: float,
-                 freq_hz: float | None = None, half_width_deg: float = 12.0,
-                 npix: int = 97) -> tuple[float, str]:
+                 freq_hz: float | None = None, field_id: int = 0, ddid: int = 0,
+                 half_width_deg: float = 12.0, npix: int = 97) -> tuple[float, str]:
     """Omega (sr) from the beam model of ``ms`` and a description of how it was made.
 
-    ``freq_hz``: where to evaluate the beam (default the MS's middle channel; grid passes
-    the centre of its whole frequency axis, so several subband MSs give one Omega)."""
-    from msleak.beam import load_beam
+    The beam is that of the stations in the rows of ``field_id`` and ``ddid`` (the rows
+    grid reads) about that field's phase centre. ``freq_hz``: where to evaluate it (default
+    the middle channel of ``ddid``; grid passes the centre of its whole frequency axis, so
+    several subband MSs give one Omega).
+
+    Raises
+    ------
+    InputError
+        Also when the model cannot describe the MS; the message then names grid's options.
+    """
+    from msleak.beam import BeamUnavailable, load_beam
     from msleak.beam.maps import sin_grid
     from msleak.io import ms as msio
     from msleak.ps.gridding import gridder_response
 
     if model not in ("everybeam", "dipole"):
         raise InputError(f"beam-area model {model!r} is not one read from the MS")
-    field = msio.read_fields(ms)[0]
-    times = msio.read_times(ms)
+    field = msio.read_fields(ms)[field_id]
+    times = msio.read_times(ms, field_id=field_id, ddid=ddid)
     if times.size == 0:
         raise InputError(f"{ms}: no rows, so no time at which to evaluate the beam")
-    freq = msio.read_spectral_windows(ms)[0].freq
+    spw_id = msio.read_data_descriptions(ms)[ddid][0]
+    freq = msio.read_spectral_windows(ms)[spw_id].freq
     t_mid = times[times.size // 2]
     f_mid = float(freq[freq.size // 2]) if freq_hz is None else float(freq_hz)
     l_deg, m_deg, ra, dec = sin_grid(field.ra, field.dec, 2 * half_width_deg, npix)
-    beam = load_beam(model, ms)
+    try:
+        beam = load_beam(model, ms, field_id=field_id, ddid=ddid)
+    except BeamUnavailable as err:
+        others = "`--beam-area-model dipole`, " if model != "dipole" else ""
+        raise BeamUnavailable(err.reason, setting=err.setting,
+                              remedy=f"use {others}`--beam-area-model airy` or "
+                                     "`--beam-area SR`") from err
     jones = beam.jones(np.array([t_mid]), np.array([f_mid]), ra.ravel(), dec.ravel())
     power = 0.5 * np.sum(np.abs(jones[:, 0, 0]) ** 2, axis=(-2, -1)).mean(axis=0)
     centre = beam.jones_centre(np.array([t_mid]), np.array([f_mid]))

@@ -2,8 +2,10 @@
 
 All functions take the unaveraged 3D power of the used uv cells of one Hermitian half,
 ``p3d`` of shape (stokes, delay, cell), with signed delays in fftshift order. Averages
-are plain means over the 3D voxels in a bin (method.md 5.4); ``counts`` is the number
-of voxels averaged (a folded delay bin counts both the +tau and the -tau voxel).
+are plain means over the 3D voxels in a bin (docs/ps.md); ``counts`` is the number
+of voxels averaged (a folded delay bin counts both the +tau and the -tau voxel). For
+P = Q + iU, which is not Hermitian, each voxel (u, tau) of the half stands for a pair
+with its mirror (-u, -tau) (:func:`mirror_polarized_power`, :func:`pair_mean`).
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ import numpy as np
 
 from msleak.errors import InputError
 
-__all__ = ["half_plane", "power_3d", "polarized_power", "fold_index", "linear_edges", "log_edges",
-           "Cylindrical", "cylindrical_average", "spherical_average", "average_1d"]
+__all__ = ["half_plane", "power_3d", "mirror_polarized_power", "pair_mean", "fold_index",
+           "linear_edges", "log_edges", "Cylindrical", "cylindrical_average",
+           "spherical_average", "average_1d"]
 
 
 def half_plane(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -33,21 +36,52 @@ def power_3d(vt: np.ndarray, vt_b: np.ndarray | None = None,
     return p / window_norm
 
 
-def polarized_power(p3d: np.ndarray, stokes: list) -> np.ndarray:
-    """Replace the P entry of a (stokes, ...) power array by P_Q + P_U.
+def mirror_polarized_power(vt: np.ndarray, vt_b: np.ndarray | None, stokes: list,
+                           window_norm: float = 1.0) -> np.ndarray | None:
+    """Power of P = Q + iU in the mirrored voxel (-u, -tau) of every voxel (u, tau).
 
-    P = Q + iU is not Hermitian: |P~(u, tau)|^2 differs from |P~(-u, -tau)|^2 (Faraday
-    rotation puts most polarized power at one sign of delay), while only one Hermitian
-    half of the uv plane is kept. The polarized power that can leak into the voxel
-    (u, tau) of Stokes I is the mean over the pair, (|P~(u, tau)|^2 + |P~(-u, -tau)|^2) / 2,
-    which equals |Q~(u, tau)|^2 + |U~(u, tau)|^2 for Hermitian Q and U (and
-    Re(Q~a Q~b*) + Re(U~a U~b*) for cross-power). The same holds for the cylindrical
-    averages, which are unchanged by this choice when both halves are averaged.
+    P is not Hermitian, so the full uv plane holds two P voxels per Hermitian pair of
+    Stokes I voxels. For Hermitian Q and U (a real sky; both gridders and the image path
+    make them so) and a real spectral window, Q~(-u, -tau) = conj(Q~(u, tau)) whatever the
+    FFT sign, hence P~(-u, -tau) = conj(Q~(u, tau) - i U~(u, tau)) and
+
+        |P~(-u, -tau)|^2 = |Q~(u, tau) - i U~(u, tau)|^2,
+
+    or Re(M~_a conj(M~_b)) with M~ = Q~ - i U~ for the cross-power of two halves.
+
+    Parameters
+    ----------
+    vt, vt_b : (stokes, delay, cell) complex
+        Delay-transformed visibilities of the cells (u, tau) (``vt_b``: second half, or
+        None for the auto-power).
+    stokes : list of str
+        Labels of the first axis.
+
+    Returns
+    -------
+    (delay, cell) float, or None when Q, U or P is not among ``stokes``.
     """
-    if "P" not in stokes:
+    if not {"P", "Q", "U"} <= set(stokes):
+        return None
+    q, u = stokes.index("Q"), stokes.index("U")
+    m = vt[q] - 1j * vt[u]
+    if vt_b is None:
+        return power_3d(m, None, window_norm)
+    return power_3d(m, vt_b[q] - 1j * vt_b[u], window_norm)
+
+
+def pair_mean(p3d: np.ndarray, p_mirror: np.ndarray | None, stokes: list) -> np.ndarray:
+    """``p3d`` with its P entry replaced by the mean over each pair (u, tau), (-u, -tau).
+
+    The bin averages of P are means over both voxels of every pair (every bin holds both:
+    they share |b| and |tau|). The pair mean equals P_Q + P_U of the voxel (u, tau)
+    identically (Hermitian Q and U). Without ``p_mirror`` the input is returned.
+    """
+    if p_mirror is None:
         return p3d
     out = np.array(p3d, copy=True)
-    out[stokes.index("P")] = p3d[stokes.index("Q")] + p3d[stokes.index("U")]
+    ip = stokes.index("P")
+    out[ip] = 0.5 * (p3d[ip] + p_mirror)
     return out
 
 

@@ -1,4 +1,4 @@
-"""Delay transform: per uv cell FFT along frequency (method.md section 5.3).
+"""Delay transform: per uv cell FFT along frequency (docs/transform.md).
 
 Convention (recorded as ``fft_convention`` in the delay product)::
 

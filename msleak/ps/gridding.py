@@ -235,7 +235,7 @@ def make_grid(cell: float, uv_max: float) -> UVGrid:
 
 
 def stokes_weights(weight: np.ndarray, flags: np.ndarray) -> np.ndarray:
-    """Weight of a Stokes sample from the weights of its four correlations.
+    """Weight of a Stokes sample from the weights of its correlations (four, or two).
 
     Parameters
     ----------
@@ -248,34 +248,46 @@ def stokes_weights(weight: np.ndarray, flags: np.ndarray) -> np.ndarray:
     Returns
     -------
     (row, chan) float64
-        ``4 / sum_c (1 / w_c)`` (harmonic mean of the correlation weights, which equals
-        ``w`` when all four are ``w``), 0 where flagged or any weight <= 0.
+        ``n / sum_c (1 / w_c)`` over the ``n`` correlations (their harmonic mean, which
+        equals ``w`` when all are ``w``), 0 where flagged or any weight <= 0.
     """
     weight = np.asarray(weight, dtype=np.float64)
     bad = np.asarray(flags, dtype=bool).any(axis=-1) | (weight <= 0).any(axis=-1)
     with np.errstate(divide="ignore"):
         inv = np.where(weight > 0, 1.0 / np.where(weight > 0, weight, 1.0), np.inf).sum(-1)
-    out = np.where(bad, 0.0, 4.0 / inv)
+    out = np.where(bad, 0.0, weight.shape[-1] / inv)
     return np.where(np.isfinite(out), out, 0.0)
 
 
 class CellAccumulator:
-    """Nearest-cell accumulation of ``sum w V`` and ``sum w`` over row chunks.
+    """Nearest-cell accumulation of ``sum w V`` and ``sum w`` over row chunks, for one or
+    several visibility sets (e.g. MS columns) on the same samples.
 
     Parameters
     ----------
     grid : UVGrid
     nchan : int
     nstokes : int
-        Number of real-sky Stokes parameters gridded (I, Q, U, V: 4).
+        Number of real-sky Stokes parameters gridded per set (I, Q, U, V: 4).
+    nsets : int
+        Visibility sets sharing the samples' coordinates and weights; each sample's cell
+        is found once for all of them.
+
+    Attributes
+    ----------
+    sum_wv : (set * stokes, chan, v, u) complex
+        ``sum w V``, set-major (plane ``k * nstokes + s``).
+    sum_w : (set, chan, v, u) float
     """
 
-    def __init__(self, grid: UVGrid, nchan: int, nstokes: int = 4):
+    def __init__(self, grid: UVGrid, nchan: int, nstokes: int = 4, nsets: int = 1):
         g = grid.size
         self.grid = grid
         self.nchan = nchan
-        self.sum_wv = np.zeros((nstokes, nchan, g, g), dtype=np.complex128)
-        self.sum_w = np.zeros((nchan, g, g), dtype=np.float64)
+        self.nstokes = int(nstokes)
+        self.nsets = int(nsets)
+        self.sum_wv = np.zeros((self.nsets * self.nstokes, nchan, g, g), dtype=np.complex128)
+        self.sum_w = np.zeros((self.nsets, nchan, g, g), dtype=np.float64)
 
     def _indices(self, u_lambda, v_lambda, wgt):
         g, M, cell = self.grid.size, self.grid.M, self.grid.cell
@@ -288,40 +300,53 @@ class CellAccumulator:
         return ok, flat, mirror
 
     def add(self, u_lambda: np.ndarray, v_lambda: np.ndarray, vis: np.ndarray,
-            wgt: np.ndarray) -> None:
+            wgt: np.ndarray, good: np.ndarray | None = None) -> None:
         """Add samples.
 
         Parameters
         ----------
         u_lambda, v_lambda : (row, chan) float
             Coordinates in wavelengths.
-        vis : (stokes, row, chan) complex
+        vis : (stokes, row, chan) or (set, stokes, row, chan) complex
             Stokes visibilities, Jy.
         wgt : (row, chan) float
-            Natural weights; 0 drops a sample (flagged or outside the uv range).
+            Natural weights, shared by the sets; 0 drops a sample (flagged or outside
+            the uv range).
+        good : (set, row, chan) bool, optional
+            False drops a sample from one set only. Default: a sample is dropped from a
+            set when one of its Stokes visibilities there is not finite.
         """
+        vis = np.reshape(vis, (self.nsets, self.nstokes) + np.shape(wgt))
+        if good is None:
+            good = np.isfinite(vis).all(axis=1)
         ok, flat, mirror = self._indices(u_lambda, v_lambda, wgt)
-        size = self.sum_w.size
+        size, shape = self.sum_w[0].size, self.sum_w.shape[1:]
         idx = np.concatenate([flat[ok], mirror[ok]])
-        w = wgt[ok]
-        ww = np.concatenate([w, w])
-        self.sum_w += np.bincount(idx, ww, minlength=size).reshape(self.sum_w.shape)
-        for s in range(self.sum_wv.shape[0]):
-            x = vis[s][ok] * w
-            re = np.concatenate([x.real, x.real])
-            im = np.concatenate([x.imag, -x.imag])
-            self.sum_wv[s] += (np.bincount(idx, re, minlength=size)
-                               + 1j * np.bincount(idx, im, minlength=size)
-                               ).reshape(self.sum_w.shape)
+        w_ok = wgt[ok]
+        for k in range(self.nsets):
+            keep = good[k][ok]
+            w = np.where(keep, w_ok, 0.0)
+            self.sum_w[k] += np.bincount(idx, np.concatenate([w, w]),
+                                         minlength=size).reshape(shape)
+            for s in range(self.nstokes):
+                x = np.where(keep, vis[k, s][ok], 0.0) * w
+                re = np.concatenate([x.real, x.real])
+                im = np.concatenate([x.imag, -x.imag])
+                self.sum_wv[k * self.nstokes + s] += (
+                    np.bincount(idx, re, minlength=size)
+                    + 1j * np.bincount(idx, im, minlength=size)).reshape(shape)
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))``, weighted means."""
+    def result(self, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))`` of set ``index``,
+        weighted means."""
+        sum_w = self.sum_w[index]
+        sum_wv = self.sum_wv[index * self.nstokes:(index + 1) * self.nstokes]
         with np.errstate(invalid="ignore", divide="ignore"):
-            vis = np.where(self.sum_w > 0, self.sum_wv / self.sum_w, 0.0)
-        return vis, self.sum_w.copy()
+            vis = np.where(sum_w > 0, sum_wv / sum_w, 0.0)
+        return vis, sum_w.copy()
 
     def merge(self, other: "CellAccumulator") -> "CellAccumulator":
-        out = CellAccumulator(self.grid, self.nchan, self.sum_wv.shape[0])
+        out = CellAccumulator(self.grid, self.nchan, self.nstokes, self.nsets)
         out.sum_wv = self.sum_wv + other.sum_wv
         out.sum_w = self.sum_w + other.sum_w
         return out
@@ -334,7 +359,10 @@ class WGridAccumulator:
     visibilities and of unit visibilities) when ``buffer_samples`` (row x channel)
     samples are waiting, when merged or when the result is asked for; also keeps
     nearest-cell natural weights (the ``weight`` output and the empty-cell mask). See
-    the module docstring for the estimator.
+    the module docstring for the estimator. Several visibility sets (e.g. MS columns) on
+    the same samples share the buffering, the per-channel sample selection and, where
+    their weights agree, the dirty image of unit visibilities; each set's images are
+    exactly those of the set gridded alone.
 
     Parameters
     ----------
@@ -342,17 +370,20 @@ class WGridAccumulator:
     freq : (chan,) float
         Channel frequencies, Hz.
     nstokes : int
+        Stokes parameters per set.
     epsilon : float
         ducc0 accuracy (relative, on the dirty image).
     nthreads : int
     taper : {'cos2', 'hann'}
     buffer_samples : int
-        Samples (rows x channels) buffered before gridding (~100 bytes each).
+        Samples (rows x channels) buffered before gridding (~100 bytes each per set).
+    nsets : int
+        Visibility sets gridded together.
     """
 
     def __init__(self, grid: UVGrid, freq: np.ndarray, nstokes: int = 4,
                  epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER,
-                 buffer_samples: int = 2_000_000):
+                 buffer_samples: int = 2_000_000, nsets: int = 1):
         self.factor = box_factor(taper)
         n = self.factor * grid.npix_image
         self.taper = taper
@@ -364,9 +395,10 @@ class WGridAccumulator:
         self.epsilon = float(epsilon)
         self.nthreads = int(nthreads)
         self.buffer_samples = int(buffer_samples)
+        self.nsets = int(nsets)
         self._npix = n
         self._dirty: np.ndarray | None = None  # allocated at the first flush
-        self.natural = CellAccumulator(grid, self.nchan, nstokes=0)
+        self.natural = CellAccumulator(grid, self.nchan, nstokes=0, nsets=self.nsets)
         self._buffer: list = []
         self._nbuffer = 0
 
@@ -376,10 +408,12 @@ class WGridAccumulator:
 
     @property
     def dirty(self) -> np.ndarray:
-        """(stokes + 1, chan, n, n) dirty images (the last one of unit visibilities)."""
+        """(set, stokes + 1, chan, n, n) dirty images (the last one of each set: unit
+        visibilities)."""
         if self._dirty is None:
             n = self._npix
-            self._dirty = np.zeros((self.nstokes + 1, self.nchan, n, n), dtype=np.float64)
+            self._dirty = np.zeros((self.nsets, self.nstokes + 1, self.nchan, n, n),
+                                   dtype=np.float64)
         return self._dirty
 
     @dirty.setter
@@ -393,20 +427,21 @@ class WGridAccumulator:
         ----------
         uvw_m : (row, 3) float
             uvw in metres, kernel sign convention (minus the MS's UVW).
-        vis : (stokes, row, chan) complex
-            Stokes visibilities, Jy.
+        vis : (stokes, row, chan) or (set, stokes, row, chan) complex
+            Stokes visibilities, Jy; a sample with a non-finite one is dropped from its set.
         wgt : (row, chan) float
-            Natural weights; 0 drops a sample.
+            Natural weights, shared by the sets; 0 drops a sample.
         """
         uvw_m = np.asarray(uvw_m, dtype=np.float64)
         wgt = np.asarray(wgt, dtype=np.float64)
+        vis = np.reshape(np.asarray(vis, np.complex128), (self.nsets, self.nstokes) + wgt.shape)
+        good = np.isfinite(vis).all(axis=1)
         scale = self.freq / SPEED_OF_LIGHT
-        self.natural.add(uvw_m[:, :1] * scale, uvw_m[:, 1:2] * scale,
-                         np.zeros((0,) + wgt.shape, complex), wgt)
+        self.natural.add(uvw_m[:, :1] * scale, uvw_m[:, 1:2] * scale, vis[:, :0], wgt, good)
         keep = (wgt > 0).any(axis=1)
         if not keep.any():
             return
-        self._buffer.append((uvw_m[keep], np.asarray(vis, np.complex128)[:, keep], wgt[keep]))
+        self._buffer.append((uvw_m[keep], vis[:, :, keep], wgt[keep], good[:, keep]))
         self._nbuffer += int(keep.sum()) * self.nchan
         if self._nbuffer >= self.buffer_samples:
             self.grid_buffer()
@@ -429,33 +464,42 @@ class WGridAccumulator:
         except ImportError as err:  # pragma: no cover - ducc0 is a dependency
             raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
         uvw_m = np.concatenate([b[0] for b in self._buffer])
-        vis = np.concatenate([b[1] for b in self._buffer], axis=1)
+        vis = np.concatenate([b[1] for b in self._buffer], axis=2)
         wgt = np.concatenate([b[2] for b in self._buffer])
+        good = np.concatenate([b[3] for b in self._buffer], axis=1)
         self._buffer, self._nbuffer = [], 0
         n, dl = self.npix, self.grid.pixel_rad
         for c in range(self.nchan):
-            sel = np.flatnonzero(wgt[:, c] > 0)
-            if sel.size == 0:
-                continue
-            w = np.ascontiguousarray(wgt[sel, c:c + 1])
-            kw = dict(uvw=np.ascontiguousarray(uvw_m[sel]), freq=self.freq[c:c + 1], wgt=w,
-                      npix_x=n, npix_y=n, pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon,
-                      do_wgridding=True, flip_w=True, divide_by_n=False,
-                      nthreads=self.nthreads)
-            for s in range(self.nstokes):
-                v = np.ascontiguousarray(vis[s, sel, c:c + 1])
-                self.dirty[s, c] += vis2dirty(vis=v, **kw)
-            self.dirty[-1, c] += vis2dirty(vis=np.ones((sel.size, 1), np.complex128), **kw)
+            plans: list = []  # (rows, ducc0 arguments, unit-visibility image) per row set
+            for k in range(self.nsets):
+                rows = np.flatnonzero((wgt[:, c] > 0) & good[k, :, c])
+                if rows.size == 0:
+                    continue
+                plan = next((p for p in plans if np.array_equal(p[0], rows)), None)
+                if plan is None:
+                    kw = dict(uvw=np.ascontiguousarray(uvw_m[rows]), freq=self.freq[c:c + 1],
+                              wgt=np.ascontiguousarray(wgt[rows, c:c + 1]), npix_x=n,
+                              npix_y=n, pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon,
+                              do_wgridding=True, flip_w=True, divide_by_n=False,
+                              nthreads=self.nthreads)
+                    psf = vis2dirty(vis=np.ones((rows.size, 1), np.complex128), **kw)
+                    plan = (rows, kw, psf)
+                    plans.append(plan)
+                _, kw, psf = plan
+                for s in range(self.nstokes):
+                    v = np.ascontiguousarray(vis[k, s, rows, c:c + 1])
+                    self.dirty[k, s, c] += vis2dirty(vis=v, **kw)
+                self.dirty[k, -1, c] += psf
 
-    def numerators(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(N (stokes, chan, v, u), Ntilde (chan, v, u))``, complex, on the output grid
-        (unnormalised: one sample of weight w at a cell centre gives Ntilde = w sum(R) / 2
-        there)."""
+    def numerators(self, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(N (stokes, chan, v, u), Ntilde (chan, v, u))`` of set ``index``, complex, on
+        the output grid (unnormalised: one sample of weight w at a cell centre gives
+        Ntilde = w sum(R) / 2 there)."""
         self.grid_buffer()
         g, n, M = self.grid.size, self.npix, self.grid.M
         # D[ix, iy] with l = (ix - n/2) dl: F[u] = sum D exp(-2 pi i (u l + v m)) on a grid
         # of cell / factor wavelengths; the cell centres are every factor-th point
-        f = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(self.dirty * self.taper_image,
+        f = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(self.dirty[index] * self.taper_image,
                                                          axes=(-2, -1))),
                             axes=(-2, -1))
         idx = n // 2 + self.factor * np.arange(-M, M + 1)
@@ -464,11 +508,11 @@ class WGridAccumulator:
         f = np.swapaxes(f, -1, -2)  # (..., u, v) -> (..., v, u)
         return f[:-1], f[-1]
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))``; weight is the
-        natural weight of the used cells (0: empty or masked)."""
-        num, den = self.numerators()
-        natural = self.natural.sum_w
+    def result(self, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))`` of set ``index``;
+        weight is the natural weight of the used cells (0: empty or masked)."""
+        num, den = self.numerators(index)
+        natural = self.natural.sum_w[index]
         kernel_weight = 2.0 * den.real / self.taper_image.sum()
         ok = (natural > 0) & (kernel_weight >= MASK_FRACTION * natural)
         n_masked = int(((natural > 0) & ~ok).sum())
@@ -482,7 +526,7 @@ class WGridAccumulator:
 
     def merge(self, other: "WGridAccumulator") -> "WGridAccumulator":
         out = WGridAccumulator(self.grid, self.freq, self.nstokes, self.epsilon,
-                               self.nthreads, self.taper, self.buffer_samples)
+                               self.nthreads, self.taper, self.buffer_samples, self.nsets)
         if self._dirty is not None or other._dirty is not None:
             out.dirty = (self._dirty if self._dirty is not None else 0.0) + (
                 other._dirty if other._dirty is not None else 0.0)
@@ -495,12 +539,14 @@ class WGridAccumulator:
 
 
 def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
-                     epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER):
-    """A fresh accumulator of the named gridder."""
+                     epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER,
+                     nsets: int = 1):
+    """A fresh accumulator of the named gridder for ``nsets`` visibility sets."""
     if gridder == "cell":
-        return CellAccumulator(grid, len(freq))
+        return CellAccumulator(grid, len(freq), nsets=nsets)
     if gridder == "wgrid":
-        return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, taper=taper)
+        return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, taper=taper,
+                                nsets=nsets)
     raise InputError(f"unknown gridder {gridder!r}: use 'wgrid' or 'cell'")
 
 

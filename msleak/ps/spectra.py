@@ -20,9 +20,16 @@ from msleak.ps import binning
 from msleak.ps.cosmology import cosmo_at, jy2_to_mk2_mpc3
 from msleak.ps.delay import FFT_CONVENTION, delay_axis, delay_transform, spectral_window
 
-__all__ = ["transform_uvcube", "power_spectrum", "DEFAULT_KPERP_1D"]
+__all__ = ["transform_uvcube", "power_spectrum", "DEFAULT_KPERP_1D", "P_POWER_DEFINITION"]
 
 log = logging.getLogger(__name__)
+
+#: how the power of P = Q + iU is stored and averaged (attribute of the ps product)
+P_POWER_DEFINITION = (
+    "P is not Hermitian: every cell (u, tau) of the half plane holds two P voxels, "
+    "|P~(u,tau)|^2 (power3d, stokes P) and |P~(-u,-tau)|^2 = |Q~(u,tau) - i U~(u,tau)|^2 "
+    "(power3d_P_mirror), both paired with P_I(u,tau); the P bins average both voxels "
+    "(= P_Q + P_U)")
 
 #: default k_perp range (Mpc^-1) of the 1D PS (the paper's)
 DEFAULT_KPERP_1D = (0.02, 0.1)
@@ -109,11 +116,14 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
         raise InputError(f"no used uv cell with |b| in {uv_min:g}..{uv_max:g} wavelengths")
     iv, iu = np.nonzero(sel)
     if cross:
-        p3d = binning.power_3d(dl["vis_a"].values[:, :, iv, iu], dl["vis_b"].values[:, :, iv, iu],
-                               a["window_norm"])
+        vt, vt_b = dl["vis_a"].values[:, :, iv, iu], dl["vis_b"].values[:, :, iv, iu]
     else:
-        p3d = binning.power_3d(dl["vis"].values[:, :, iv, iu], None, a["window_norm"])
-    p3d = binning.polarized_power(p3d, list(dl["stokes"].values))
+        vt, vt_b = dl["vis"].values[:, :, iv, iu], None
+    p3d = binning.power_3d(vt, vt_b, a["window_norm"])
+    labels = [str(s) for s in dl["stokes"].values]
+    p_mirror = binning.mirror_polarized_power(vt, vt_b, labels, a["window_norm"])
+    del vt, vt_b
+    p_bins = binning.pair_mean(p3d, p_mirror, labels)  # P bins: both voxels of each pair
     delay = dl["delay"].values
     b_cell = b[iv, iu]
     kperp_cell = cosmo.k_perp(b_cell)
@@ -131,7 +141,7 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
     else:
         edges_b = (binning.log_edges(lo, uv_max, n_perp) if log_perp
                    else binning.linear_edges(uv_min, uv_max, n_perp))
-    cyl = binning.cylindrical_average(p3d, delay, b_cell, edges_b)
+    cyl = binning.cylindrical_average(p_bins, delay, b_cell, edges_b)
     omega = float(beam_area_sr or a.get("beam_area_sr") or 0.0)
     factor = jy2_to_mk2_mpc3(cosmo, omega, a["bandwidth_hz"]) if omega > 0 else None
     units = "mK^2 Mpc^3" if factor else "Jy^2"
@@ -144,8 +154,8 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
     kmax = float(np.sqrt(kperp_cell.max() ** 2 + np.abs(kpar_signed).max() ** 2))
     kmin = float(max(kperp_cell.min(), 1e-6))
     edges_k = binning.log_edges(kmin, kmax * (1 + 1e-9), n_sph)
-    p_sph, c_sph = binning.spherical_average(p3d * scale, kpar_signed, kperp_cell, edges_k)
-    p_1d, c_1d = binning.average_1d(p3d * scale, delay, kperp_cell, *kperp_1d)
+    p_sph, c_sph = binning.spherical_average(p_bins * scale, kpar_signed, kperp_cell, edges_k)
+    p_1d, c_1d = binning.average_1d(p_bins * scale, delay, kperp_cell, *kperp_1d)
     if c_1d.max() == 0:
         log.warning("no uv cell has k_perp in %g..%g Mpc^-1: the 1D PS is empty", *kperp_1d)
     if primary_theta_deg is not None:
@@ -186,11 +196,17 @@ def power_spectrum(dl: xr.Dataset, *, cosmology: str = "Planck18", n_perp: int |
                 "k": ("k", np.sqrt(edges_k[:-1] * edges_k[1:]), {"units": "Mpc^-1"}),
                 "delay3d": ("delay3d", delay, {"units": "s"})},
     )
+    if p_mirror is not None:
+        ds["power3d_P_mirror"] = (d3[1:], p_mirror * scale, {
+            "units": units, "long_name": "power of P = Q + iU in the mirrored voxel "
+            "(-u, -tau) of every voxel (u, tau) of power3d"})
+        ds.attrs["P_power_definition"] = P_POWER_DEFINITION
     keep = ("cell_lambda", "uv_min_lambda", "uv_max_lambda", "source", "source_kind",
             "column", "field_id", "gridder", "w_correction", "fov_deg", "taper",
             "primary_fwhm_deg", "window",
             "window_norm", "freq_centre_hz", "bandwidth_hz", "nchan", "channel_width_hz",
-            "fft_convention", "stokes_convention", "split", "empty_cell_policy")
+            "fft_convention", "stokes_convention", "split", "empty_cell_policy",
+            "correlations", "stokes_missing")
     ds.attrs.update({k: a[k] for k in keep if k in a})
     ds.attrs.update({
         "cosmology": cosmology, "redshift": cosmo.z, "comoving_distance_mpc": cosmo.dc_mpc,
