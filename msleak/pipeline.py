@@ -126,7 +126,8 @@ def study_steps(cfg: StudyConfig) -> list[Step]:
             obs_ps = fdir / "observed_ps.h5"
             steps += [
                 Step(f"observed-grid-{fld}", ["grid", "--image", q_cube, "--image", u_cube,
-                                              "--fov", "4", "-o", obs_grid],
+                                              "--stokes", "Q,U", "--fov", "4",
+                                              "-o", obs_grid],
                      inputs=[q_cube, u_cube], outputs=[obs_grid]),
                 Step(f"observed-transform-{fld}", ["transform", obs_grid, "-o", obs_delay],
                      inputs=[obs_grid], outputs=[obs_delay]),

@@ -82,3 +82,38 @@ def test_bad_observed_option(tmp_path):
     result = CliRunner().invoke(cli, ["paper", str(tmp_path / "x"), "--observed", "ncp=a.fits"])
     assert result.exit_code == 2
     assert "expected FIELD=Q.fits,U.fits" in result.output
+
+
+def test_observed_grid_step_runs_on_plain_q_and_u_cubes(tmp_path, monkeypatch):
+    """``--observed ncp=Q.fits,U.fits`` with cubes that have no STOKES axis (as imagers
+    write them): the study's observed-grid command grids them as Q and U, equal to the
+    grid of the combined Q,U cube."""
+    from astropy.io import fits
+
+    from msleak.pipeline import StudyConfig, study_steps
+
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    assert runner.invoke(cli, ["sky", "sky.fits", "--seed", "2", "--npix", "16",
+                               "--nchan", "4"]).exit_code == 0
+    with fits.open("sky.fits") as hdul:
+        data, header = hdul[0].data, hdul[0].header
+    for k, stokes in enumerate("QU"):
+        single = header.copy()
+        for key in ("CTYPE4", "CRVAL4", "CDELT4", "CRPIX4"):
+            del single[key]
+        fits.PrimaryHDU(data[k], single).writeto(f"{stokes}.fits")
+    cfg = StudyConfig(outdir=tmp_path / "study", fields=("ncp",),
+                      observed={"ncp": ("Q.fits", "U.fits")})
+    step = next(s for s in study_steps(cfg) if s.name == "observed-grid-ncp")
+    args = [str(a) for a in step.args]
+    args[args.index("-o") + 1] = "observed.h5"
+    result = runner.invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    ref = runner.invoke(cli, ["grid", "--image", "sky.fits", "--fov", "4", "-o", "ref.h5"])
+    assert ref.exit_code == 0, ref.output
+    with xr.open_dataset("observed.h5") as a, xr.open_dataset("ref.h5") as b:
+        for stokes in "QU":
+            assert np.abs(b["vis"].sel(stokes=stokes).values).max() > 0
+            np.testing.assert_array_equal(a["vis"].sel(stokes=stokes).values,
+                                          b["vis"].sel(stokes=stokes).values)
