@@ -167,3 +167,52 @@ def test_bad_files_exit_2(products, tmp_path):
     r = run(products["9deg"], "-o", tmp_path / "o3", "--expected", f"{products['obs']},"
             f"{products['obs']}", "--correct", str(products["obs"]), "--no-figures")
     assert r.exit_code == 2 and "pairs one to one" in r.stderr
+
+
+def test_realisations_give_mean_and_scatter(tmp_path):
+    """Three sky realisations of two fields of view each, with exact leakage eps: each
+    realisation's estimate is the mean of its two 100 eps, and the field estimate is
+    their mean with the standard deviation (ddof 1) over realisations."""
+    rng = np.random.default_rng(31)
+    eps = {2018: (0.010, 0.006), 2019: (0.012, 0.008), 2020: (0.004, 0.002)}
+    paths, labels, reals = [], [], []
+    for seed, pair in eps.items():
+        for label, e in zip(("15deg", "4deg"), pair):
+            v_p = gaussian_voxels(SHAPE, 2.0, rng)
+            paths.append(write_ps(tmp_path / f"ps_{label}_{seed}.h5",
+                                  make_ps_dataset(rotated_leakage(v_p, e, rng), v_p)))
+            labels.append(label)
+            reals.append(str(seed))
+    out = tmp_path / "out"
+    r = run(*paths, "--labels", ",".join(labels), "--realisations", ",".join(reals),
+            "--no-figures", "--n-boot", "20", "-o", out)
+    assert r.exit_code == 0, r.output
+    with open(out / "estimates.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    per = {int(r["realisation"]): float(r["estimate"]) for r in rows[:-1]}
+    expected = {s: 100 * np.mean(p) for s, p in eps.items()}
+    assert per.keys() == expected.keys()
+    for s in per:
+        assert per[s] == pytest.approx(expected[s], rel=1e-5)
+    values = np.array(list(expected.values()))
+    assert rows[-1]["realisation"] == "all"
+    assert float(rows[-1]["estimate"]) == pytest.approx(values.mean(), rel=1e-5)
+    assert float(rows[-1]["realisation_std"]) == pytest.approx(values.std(ddof=1), rel=1e-4)
+    assert float(rows[-1]["estimate_data"]) == pytest.approx(values.mean(), rel=1e-5)
+    with open(out / "stats.csv") as fh:
+        assert [int(r["realisation"]) for r in csv.DictReader(fh)] == [int(s) for s in reals]
+    md = (out / "stats.md").read_text()
+    assert "over 3 sky realisations" in md
+    assert f"{values.mean():.4g} ± {values.std(ddof=1):.2g} %" in md
+    assert f"{values.mean():.4g} ± {values.std(ddof=1):.2g} %" in r.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--realisations", "1,2"], "2 realisations for 3 PS inputs"),
+    (["--realisations", "1,x,2"], "expected comma-separated integers"),
+    (["--labels", "a,a,b", "--realisations", "1,1,2"], "unique within a realisation"),
+])
+def test_realisation_errors(products, tmp_path, args, message):
+    r = run(products["15deg"], products["9deg"], products["4deg"], *args, "-o", tmp_path / "o")
+    assert r.exit_code == 2
+    assert message in r.output

@@ -24,9 +24,16 @@ def _labels(ctx, param, value):
     parts = [p.strip() for p in value.split(",")]
     if any(p == "" for p in parts):
         raise click.BadParameter(f"empty label in {value!r}")
-    if len(set(parts)) != len(parts):
-        raise click.BadParameter(f"labels must be unique, got {value!r}")
     return parts
+
+
+def _ints(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        return [int(p) for p in value.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated integers, got {value!r}") from None
 
 
 def _range(ctx, param, value):
@@ -44,6 +51,10 @@ def _range(ctx, param, value):
               help="Output directory: stats.csv, stats.md, leakage.h5, figures.")
 @click.option("--labels", callback=_labels, metavar="L1,L2,...",
               help="One label per PS input, e.g. 15deg,9deg,4deg (default: file names).")
+@click.option("--realisations", callback=_ints, metavar="R1,R2,...",
+              help="The sky realisation (e.g. seed) of each PS input: the per-field "
+              "estimate is then given per realisation and as mean +- std over them "
+              "(estimates.csv). Labels need only be unique within a realisation.")
 @click.option("--field-name", default="", metavar="NAME",
               help="Name of the field (e.g. NCP), used in tables and figure titles.")
 @click.option("--stats-from", type=click.Choice(["voxels", "bins"]), default="voxels",
@@ -89,7 +100,7 @@ def _range(ctx, param, value):
               "delays are redrawn).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the bootstrap.")
-def leakage(ps, outdir, labels, field_name, stats_from, negative, bins, hist_quantile,
+def leakage(ps, outdir, labels, realisations, field_name, stats_from, negative, bins, hist_quantile,
             k_par_range, k_perp_range, expected, expected_labels, expected_model,
             leakage_rel_error, correct, figures, pdf, n_boot, bootstrap_block, seed):
     """Fractional leakage L_I = 100 sqrt(P_I / P_P) (percent) of one or more PS products.
@@ -107,11 +118,14 @@ def leakage(ps, outdir, labels, field_name, stats_from, negative, bins, hist_qua
     Example (three fields of view of one field):
       msleak leakage ps15.h5 ps9.h5 ps4.h5 --labels 15deg,9deg,4deg --field-name NCP -o out/
     """
-    from msleak.leakage.report import LeakageOptions, run_leakage
+    from msleak.leakage.report import LeakageOptions, estimate_summary, run_leakage
 
     if labels is not None and len(labels) != len(ps):
         raise click.BadParameter(f"{len(labels)} labels for {len(ps)} PS inputs",
                                  param_hint="--labels")
+    if realisations is not None and len(realisations) != len(ps):
+        raise click.BadParameter(f"{len(realisations)} realisations for {len(ps)} PS inputs",
+                                 param_hint="--realisations")
     obs = expected or correct
     if expected_labels is not None and len(expected_labels) != len(obs):
         raise click.BadParameter(f"{len(expected_labels)} labels for {len(obs)} observed PS",
@@ -121,9 +135,7 @@ def leakage(ps, outdir, labels, field_name, stats_from, negative, bins, hist_qua
                           k_perp_range=k_perp_range, expected_model=expected_model,
                           rel_error=leakage_rel_error, figures=figures, pdf=pdf,
                           n_boot=n_boot, bootstrap_block=bootstrap_block, seed=seed)
-    files = run_leakage(ps, outdir, labels, expected, expected_labels, correct, opts)
+    files, result = run_leakage(ps, outdir, labels, expected, expected_labels, correct, opts,
+                                realisations)
     click.echo(f"msleak leakage: wrote {len(files)} files to {outdir}")
-    stats = files["stats_md"].read_text().splitlines()
-    for line in stats:
-        if line.startswith("Per-field estimate"):
-            click.echo(line.replace("**", ""))
+    click.echo(estimate_summary(result))

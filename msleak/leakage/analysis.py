@@ -20,8 +20,8 @@ from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_fractio
                                      leakage_map, leakage_voxels, stokes_power, voxel_power)
 from msleak.leakage.stats import field_estimate, leakage_statistics
 
-__all__ = ["analyse", "predict", "correct", "voxel_groups", "correlation", "ModelMode",
-           "STAT_COLUMNS", "VOXEL_DEFINITION"]
+__all__ = ["analyse", "realisation_estimates", "predict", "correct", "voxel_groups",
+           "correlation", "STAT_COLUMNS", "VOXEL_DEFINITION"]
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
             k_par_range: tuple[float, float] | None = None,
             k_perp_range: tuple[float, float] | None = None,
             field_name: str = "", n_boot: int = 200, bootstrap_block: int = 2,
-            seed: int = 0) -> xr.Dataset:
+            seed: int = 0, realisations: Sequence[int] | None = None) -> xr.Dataset:
     """L_I maps, voxel statistics and Pareto fits of several PS products.
 
     Parameters
@@ -73,6 +73,10 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         Block bootstrap of the errors: ``n_boot`` resamples (0: none) of uv cells with all
         their delays, in blocks of ``bootstrap_block`` x ``bootstrap_block`` neighbouring
         cells (with ``stats_from="bins"``: of k_perp columns), seeded by ``seed``.
+    realisations : sequence of int, optional
+        The sky realisation (e.g. its seed) of each input; the per-field estimate is the
+        mean over realisations of each realisation's mean over its inputs, with the
+        scatter over realisations (:func:`realisation_estimates`). Default: all one.
 
     Returns
     -------
@@ -82,6 +86,9 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
     """
     if not datasets:
         raise InputError("no PS product given")
+    realisations = [0] * len(datasets) if realisations is None else list(realisations)
+    if len(realisations) != len(datasets):
+        raise InputError(f"{len(realisations)} realisations for {len(datasets)} inputs")
     maps, rows, hists, edges, masked = [], [], [], [], []
     for ds, label, path in zip(datasets, labels, paths):
         name = str(path)
@@ -141,7 +148,8 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
                     MASK_CODES["not_in_grid"])
     n_in = len(datasets)
     out = grid.assign_coords(input=np.arange(n_in), label=("input", list(labels)),
-                             path=("input", [str(p) for p in paths]))
+                             path=("input", [str(p) for p in paths]),
+                             realisation=("input", np.asarray(realisations, np.int64)))
     for col in rows[0]:
         values = [r[col] for r in rows]
         out[col] = ("input", np.asarray(values))
@@ -168,12 +176,17 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
     reasons = [n for n in MASK_CODES if n != "valid"]
     out["n_masked_by_reason"] = (("input", "mask_reason"), np.array(masked, dtype=np.int64))
     out = out.assign_coords(mask_reason=reasons)
-    est, spread = field_estimate(out["pareto_median"].values)
-    est_data, spread_data = field_estimate(out["median"].values)
+    out = out.merge(realisation_estimates(out))
+    est, spread = field_estimate(out["realisation_estimate"].values)
+    est_data, spread_data = field_estimate(out["realisation_estimate_data"].values)
     out.attrs.update({
         "field_name": field_name,
-        "field_estimate": est, "field_estimate_spread": spread,
-        "field_estimate_data": est_data, "field_estimate_data_spread": spread_data,
+        "field_estimate": est, "field_estimate_data": est_data,
+        "n_realisations": int(out.sizes["realisation_id"]),
+        "field_estimate_realisation_std": spread,
+        "field_estimate_data_realisation_std": spread_data,
+        "field_estimate_spread": _fov_spread(out, "pareto_median"),
+        "field_estimate_data_spread": _fov_spread(out, "median"),
         "L_I_definition": "L_I = 100 sqrt(P_I / P_P) percent, P_P = power of Q + iU",
         "P_P_voxels": (VOXEL_DEFINITION if stats_from == "voxels" else
                        "2D bins: P_P = bin mean over both voxels (u,tau), (-u,-tau) of "
@@ -197,6 +210,30 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
                                                     datasets[0].attrs.get("units", ""))),
     })
     return out
+
+
+def realisation_estimates(result: xr.Dataset) -> xr.Dataset:
+    """Per-field estimate of each sky realisation: the mean over its inputs (fields of
+    view) of the Pareto and of the data medians, with the mean of their bootstrap errors
+    as the error (the fields of view of one sky are nested, so their errors are taken as
+    fully correlated). Dim ``realisation_id``, coordinate values the realisations."""
+    ids = np.unique(result["realisation"].values)
+    cols = {"realisation_estimate": "pareto_median",
+            "realisation_estimate_err": "pareto_median_err",
+            "realisation_estimate_data": "median", "realisation_estimate_data_err": "median_err"}
+    data = {}
+    for name, col in cols.items():
+        values = result[col].values
+        data[name] = ("realisation_id", np.array(
+            [values[result["realisation"].values == r].mean() for r in ids]),
+            {"units": "percent", "long_name": f"mean of {col} over the realisation's inputs"})
+    return xr.Dataset(data, coords={"realisation_id": ids})
+
+
+def _fov_spread(result: xr.Dataset, col: str) -> float:
+    """Standard deviation of ``col`` over each realisation's inputs, averaged."""
+    return float(np.mean([field_estimate(result[col].values[result["realisation"].values == r])[1]
+                          for r in result["realisation_id"].values]))
 
 
 def voxel_groups(ds: xr.Dataset, source: str = "voxels", negative: NegativePolicy = "mask",

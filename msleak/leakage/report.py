@@ -20,8 +20,8 @@ from msleak.errors import InputError
 from msleak.io.products import open_product, save_product
 from msleak.leakage.analysis import STAT_COLUMNS, ModelMode, analyse, correct, predict
 
-__all__ = ["LeakageOptions", "run_leakage", "write_stats_csv", "write_stats_md",
-           "default_labels"]
+__all__ = ["LeakageOptions", "run_leakage", "write_stats_csv", "write_estimates_csv",
+           "write_stats_md", "estimate_summary", "default_labels"]
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ def _safe(label: str) -> str:
 def write_stats_csv(result: xr.Dataset, path: str | os.PathLike) -> Path:
     """``stats.csv``: one row per input; L_I statistics in percent, counts as integers."""
     path = Path(path)
-    cols = ("input", "label", *STAT_COLUMNS)
+    cols = ("input", "label", *STAT_COLUMNS, "realisation")
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(cols)
@@ -71,8 +71,62 @@ def write_stats_csv(result: xr.Dataset, path: str | os.PathLike) -> Path:
             for c in STAT_COLUMNS:
                 v = result[c].values[i]
                 row.append(int(round(float(v))) if c.startswith("n_") else f"{float(v):.6g}")
-            w.writerow(row)
+            w.writerow(row + [int(result["realisation"].values[i])])
     return path
+
+
+def write_estimates_csv(result: xr.Dataset, path: str | os.PathLike) -> Path:
+    """``estimates.csv``: the per-field estimate of each sky realisation (mean over its
+    inputs of the Pareto and data medians, with errors), then a row ``all``: the mean over
+    realisations, the mean error within one, and the standard deviation over them."""
+    path = Path(path)
+    a = result.attrs
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(["realisation", "estimate", "estimate_err", "estimate_data",
+                    "estimate_data_err", "realisation_std", "realisation_std_data"])
+        for k, r in enumerate(result["realisation_id"].values):
+            w.writerow([int(r)] + [f"{float(result[c].values[k]):.6g}" for c in (
+                "realisation_estimate", "realisation_estimate_err",
+                "realisation_estimate_data", "realisation_estimate_data_err")] + ["", ""])
+        w.writerow(["all", f"{a['field_estimate']:.6g}",
+                    f"{float(result['realisation_estimate_err'].mean()):.6g}",
+                    f"{a['field_estimate_data']:.6g}",
+                    f"{float(result['realisation_estimate_data_err'].mean()):.6g}",
+                    f"{a['field_estimate_realisation_std']:.6g}",
+                    f"{a['field_estimate_data_realisation_std']:.6g}"])
+    return path
+
+
+def estimate_summary(result: xr.Dataset) -> str:
+    """The per-field estimate in one plain line (what ``msleak leakage`` prints)."""
+    return _estimate_lines(result)[-1].replace("**", "")
+
+
+def _estimate_lines(result: xr.Dataset) -> list[str]:
+    """The per-field estimate in words: one realisation, or mean +- std over several."""
+    a = result.attrs
+    n = result.sizes["input"]
+    if a["n_realisations"] == 1:
+        return [f"Per-field estimate (mean of the Pareto medians over {n} input(s)): "
+                f"**{a['field_estimate']:.4g} %** (spread {a['field_estimate_spread']:.2g} %); "
+                f"mean of the data medians: {a['field_estimate_data']:.4g} % "
+                f"(spread {a['field_estimate_data_spread']:.2g} %)."]
+    lines = ["| realisation | estimate, Pareto medians (%) | estimate, data medians (%) |",
+             "|---|---:|---:|"]
+    for k, r in enumerate(result["realisation_id"].values):
+        lines.append(f"| {int(r)} | {float(result['realisation_estimate'].values[k]):.4g} ± "
+                     f"{float(result['realisation_estimate_err'].values[k]):.2g} | "
+                     f"{float(result['realisation_estimate_data'].values[k]):.4g} ± "
+                     f"{float(result['realisation_estimate_data_err'].values[k]):.2g} |")
+    err = float(result["realisation_estimate_err"].mean())
+    err_data = float(result["realisation_estimate_data_err"].mean())
+    return lines + ["", f"Per-field estimate over {a['n_realisations']} sky realisations "
+                    f"(mean ± standard deviation over realisations; bootstrap error within "
+                    f"one realisation in brackets), Pareto medians: "
+                    f"**{a['field_estimate']:.4g} ± {a['field_estimate_realisation_std']:.2g} %** "
+                    f"({err:.2g} %); data medians: {a['field_estimate_data']:.4g} ± "
+                    f"{a['field_estimate_data_realisation_std']:.2g} % ({err_data:.2g} %)."]
 
 
 def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
@@ -93,19 +147,12 @@ def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
             f"| {g('ks_d', '.3f')} ({g('ks_p_eff', '.2g')}) "
             f"| {int(result['n_voxels'].values[i])} ({g('n_eff', '.0f')}) "
             f"| {int(result['n_masked'].values[i])} |")
-    n = result.sizes["input"]
     unit = ("voxel of the unaveraged 3D power on the full uv plane (P = Q + iU is not "
             "Hermitian: each uv cell and delay (u, tau) gives two voxels, (u, tau) and "
             "(-u, -tau), each with its own P_P = |P~|^2 and the same P_I; the bootstrap "
             "draws both together)" if a["stats_from"] == "voxels"
             else "2D (k_par, k_perp) bin")
-    lines += [
-        "",
-        f"Per-field estimate (mean of the Pareto medians over {n} input(s)): "
-        f"**{a['field_estimate']:.4g} %** (spread {a['field_estimate_spread']:.2g} %); "
-        f"mean of the data medians: {a['field_estimate_data']:.4g} % "
-        f"(spread {a['field_estimate_data_spread']:.2g} %).",
-        "",
+    lines += ["", *_estimate_lines(result), "",
         f"L_I = 100 sqrt(P_I / P_P) per {unit}{_range_text(a)}. "
         f"Peak = centre of the fullest bin of {a['hist_binning']} "
         "(bin widths in stats.csv, `peak_bin_width`). Pareto median = 100 sqrt(loc + 2 scale) "
@@ -147,8 +194,11 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
                 expected: Sequence[str | os.PathLike] = (),
                 expected_labels: Sequence[str] | None = None,
                 correct_inputs: Sequence[str | os.PathLike] = (),
-                options: LeakageOptions = LeakageOptions()) -> dict[str, Path]:
-    """Run the whole ``msleak leakage`` command; returns the written files by role.
+                options: LeakageOptions = LeakageOptions(),
+                realisations: Sequence[int] | None = None
+                ) -> tuple[dict[str, Path], xr.Dataset]:
+    """Run the whole ``msleak leakage`` command; returns the written files by role and the
+    leakage result (:func:`msleak.leakage.analysis.analyse`).
 
     Parameters
     ----------
@@ -165,13 +215,19 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     correct_inputs : sequence of path
         Observed PS products whose Stokes I is bias-corrected; paired one to one with
         ``expected`` (or, without ``expected``, their own Stokes P is used).
+    realisations : sequence of int, optional
+        The sky realisation (seed) of each input; the per-field estimate is then given
+        per realisation and as mean +- std over them (``estimates.csv``).
     """
     inputs = [str(p) for p in inputs]
     labels = list(labels) if labels else default_labels(inputs)
     if len(labels) != len(inputs):
         raise InputError(f"{len(labels)} labels for {len(inputs)} inputs")
-    if len(set(labels)) != len(labels):
-        raise InputError(f"labels must be unique, got {','.join(labels)}")
+    if realisations is not None and len(realisations) != len(inputs):
+        raise InputError(f"{len(realisations)} realisations for {len(inputs)} inputs")
+    keys = list(zip(labels, realisations or [0] * len(labels)))
+    if len(set(keys)) != len(keys):
+        raise InputError(f"labels must be unique within a realisation, got {','.join(labels)}")
     expected = [str(p) for p in expected]
     correct_inputs = [str(p) for p in correct_inputs]
     if correct_inputs and expected and len(correct_inputs) != len(expected):
@@ -179,6 +235,8 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
                          f"{len(correct_inputs)} and {len(expected)} files")
     obs_paths = expected or correct_inputs
     obs_labels = list(expected_labels) if expected_labels else default_labels(obs_paths)
+    if len(set(obs_labels)) != len(obs_labels):
+        raise InputError(f"--expected-labels must be unique, got {','.join(obs_labels)}")
     if obs_paths and len(obs_labels) != len(obs_paths):
         raise InputError(f"{len(obs_labels)} --expected-labels for {len(obs_paths)} "
                          "observed PS products")
@@ -191,7 +249,8 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
                      bins=o.bins, upper_quantile=o.upper_quantile,
                      k_par_range=o.k_par_range, k_perp_range=o.k_perp_range,
                      field_name=o.field_name, n_boot=o.n_boot,
-                     bootstrap_block=o.bootstrap_block, seed=o.seed)
+                     bootstrap_block=o.bootstrap_block, seed=o.seed,
+                     realisations=realisations)
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise InputError(f"{outdir} exists and is not a directory")
@@ -199,6 +258,7 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
     files: dict[str, Path] = {}
     files["stats_csv"] = write_stats_csv(result, outdir / "stats.csv")
     files["stats_md"] = write_stats_md(result, outdir / "stats.md")
+    files["estimates_csv"] = write_estimates_csv(result, outdir / "estimates.csv")
     files["leakage"] = save_product(result, outdir / "leakage.h5", "leakage")
 
     exp_results, corr_results = [], []
@@ -231,4 +291,4 @@ def run_leakage(inputs: Sequence[str | os.PathLike], outdir: str | os.PathLike,
         if corr_results:
             files["corrected_png"] = pl.plot_corrected_spherical(
                 corr_results, outdir / "corrected.png", o.pdf, o.field_name)
-    return files
+    return files, result
