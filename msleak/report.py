@@ -28,7 +28,7 @@ def _stats_rows(path: Path) -> list[dict]:
 
 
 def _extra_figures(cfg, out: Path) -> dict:
-    """1D PS of Q and U for the three fields of view, per field (method.md section 8)."""
+    """1D PS of Q and U for the three fields of view, per field (docs/science.md section 8)."""
     from msleak.pipeline import FIELDS_OF_VIEW
     from msleak.plot.ps import plot_ps1d
 
@@ -45,6 +45,61 @@ def _extra_figures(cfg, out: Path) -> dict:
         except Exception as err:  # a figure must not lose the report
             log.warning("1D PS figure for %s failed: %s", fld, err)
     return made
+
+
+def _stats_table(rows: list[dict], with_seed: bool) -> list[str]:
+    """The L_I statistics of every field of view (and sky seed) as a Markdown table."""
+    seed_col = ("| sky seed ", "|---") if with_seed else ("", "")
+    lines = ["Statistics of L_I over the 3D power-spectrum voxels (percent):", "",
+             f"{seed_col[0]}| field of view | mean | median | std | peak | Pareto median "
+             "| voxels |", f"{seed_col[1]}|---|---|---|---|---|---|---|"]
+    for r in rows:
+        seed = f"| {r['realisation']} " if with_seed else ""
+        lines.append(f"{seed}| {r.get('label', '')} | {float(r['mean']):.3g} | "
+                     f"{float(r['median']):.3g} | {float(r['std']):.3g} | "
+                     f"{float(r['peak']):.3g} | {float(r['pareto_median']):.3g} | "
+                     f"{r.get('n_voxels', '')} |")
+    return lines + [""]
+
+
+def _estimate_text(est: list[dict]) -> list[str]:
+    """The per-field estimate from ``estimates.csv`` (written by ``msleak leakage``)."""
+    total = est[-1]
+    if len(est) == 2:
+        return [f"Per-field estimate, the mean over the fields of view of the data medians: "
+                f"**L_I = {float(total['estimate_data']):.3g} %**; of the fitted Pareto "
+                f"medians: **{float(total['estimate']):.3g} %** (bootstrap error "
+                f"{float(total['estimate_err']):.2g} %).", ""]
+    lines = ["Per-field estimate of each sky realisation (mean over the fields of view; "
+             "± bootstrap error):", "",
+             "| sky seed | data medians (%) | Pareto medians (%) |", "|---|---|---|"]
+    for r in est[:-1]:
+        lines.append(f"| {r['realisation']} | {float(r['estimate_data']):.3g} ± "
+                     f"{float(r['estimate_data_err']):.2g} | {float(r['estimate']):.3g} ± "
+                     f"{float(r['estimate_err']):.2g} |")
+    return lines + ["", f"Over {len(est) - 1} realisations (mean ± standard deviation): "
+                    f"data medians **L_I = {float(total['estimate_data']):.3g} ± "
+                    f"{float(total['realisation_std_data']):.2g} %**, Pareto medians "
+                    f"**{float(total['estimate']):.3g} ± {float(total['realisation_std']):.2g} "
+                    f"%**; the bootstrap error within one realisation is "
+                    f"{float(total['estimate_err']):.2g} %.", ""]
+
+
+def _summary(estimates: list, seeds: int) -> list[str]:
+    """The per-field estimates of every field side by side."""
+    if seeds == 1:
+        lines = ["## Summary", "",
+                 "| field | L_I, mean of data medians (%) | L_I, mean of Pareto medians (%) |",
+                 "|---|---|---|"]
+        return lines + [f"| {fld.upper()} | {float(t['estimate_data']):.3g} | "
+                        f"{float(t['estimate']):.3g} |" for fld, t in estimates] + [""]
+    lines = ["## Summary", "", f"Mean ± standard deviation over {seeds} sky realisations "
+             "(bootstrap error within one realisation in brackets).", "",
+             "| field | L_I, data medians (%) | L_I, Pareto medians (%) |", "|---|---|---|"]
+    return lines + [f"| {fld.upper()} | {float(t['estimate_data']):.3g} ± "
+                    f"{float(t['realisation_std_data']):.2g} ({float(t['estimate_data_err']):.2g})"
+                    f" | {float(t['estimate']):.3g} ± {float(t['realisation_std']):.2g} "
+                    f"({float(t['estimate_err']):.2g}) |" for fld, t in estimates] + [""]
 
 
 def write_report(cfg, steps, step_log, seconds: float) -> Path:
@@ -66,7 +121,9 @@ def write_report(cfg, steps, step_log, seconds: float) -> Path:
         "phase centre removed, for fields of view of 15, 9 and 4 deg (the paper's 50, 28 "
         "and 16 pixels of 0.3 deg, i.e. 15, 8.4 and 4.8 deg a side), then gridded "
         "(30-180 wavelengths, 16-wavelength cells), delay-transformed (Blackman-Harris) "
-        "and turned into Stokes power spectra. L_I = 100 sqrt(P_I / P_P).",
+        "and turned into Stokes power spectra. L_I = 100 sqrt(P_I / P_P). Sky "
+        f"realisations: {cfg.seeds} (seeds {', '.join(map(str, cfg.realisations))}), each "
+        "through the same MSs and beams; figures show the first.",
         "",
         "## Sky model",
         "",
@@ -79,23 +136,11 @@ def write_report(cfg, steps, step_log, seconds: float) -> Path:
         rows = _stats_rows(fdir / "leakage" / "stats.csv")
         lines += [f"## Field {fld.upper()}", ""]
         if rows:
-            lines += ["Statistics of L_I over the 3D power-spectrum voxels (percent):", "",
-                      "| field of view | mean | median | std | peak | Pareto median | voxels |",
-                      "|---|---|---|---|---|---|---|"]
-            medians, fitted = [], []
-            for r in rows:
-                lines.append(f"| {r.get('label', '')} | {float(r['mean']):.3g} | "
-                             f"{float(r['median']):.3g} | {float(r['std']):.3g} | "
-                             f"{float(r['peak']):.3g} | {float(r['pareto_median']):.3g} | "
-                             f"{r.get('n_voxels', '')} |")
-                medians.append(float(r["median"]))
-                fitted.append(float(r["pareto_median"]))
-            estimate = sum(medians) / len(medians)
-            estimate_fit = sum(fitted) / len(fitted)
-            estimates.append((fld, estimate, estimate_fit))
-            lines += ["", f"Per-field estimate, the mean over the fields of view of the data "
-                          f"medians: **L_I = {estimate:.3g} %**; of the fitted Pareto medians: "
-                          f"**{estimate_fit:.3g} %**.", ""]
+            lines += _stats_table(rows, cfg.seeds > 1)
+            est = _stats_rows(fdir / "leakage" / "estimates.csv")
+            if est:
+                lines += _estimate_text(est)
+                estimates.append((fld, est[-1]))
         for name, caption in (("leakage/leakage_maps.png", "P_P, P_I and L_I with wedges"),
                               ("leakage/leakage_hist.png", "L_I histograms and Pareto fits"),
                               ("leakage/expected_leakage.png", "expected leakage")):
@@ -111,11 +156,7 @@ def write_report(cfg, steps, step_log, seconds: float) -> Path:
             if png.exists():
                 lines += [f"![2D PS {fld} {label}]({_rel(png, out)})", ""]
     if estimates:
-        lines += ["## Summary", "",
-                  "| field | L_I, mean of data medians (%) | L_I, mean of Pareto medians (%) |",
-                  "|---|---|---|"]
-        lines += [f"| {fld.upper()} | {est:.3g} | {fit:.3g} |" for fld, est, fit in estimates]
-        lines.append("")
+        lines += _summary(estimates, cfg.seeds)
     lines += ["## Commands", "",
               "Every step is one msleak command; run from the folder that holds this report's "
               "parent. Times are wall-clock seconds.", "",

@@ -7,7 +7,7 @@ of the largest process). The per-topic scripts (scripts/bench_*.py, each accepti
 EveryBeam direct (beam), DP3 predict + applybeam (predict), ps_eor (PS of an image cube),
 and the scaling of predict and grid with sources, stations, times and channels.
 
-Paper scale (method.md 2-3): NCP, 13 h of 120 s slots, the 48 LOFAR HBA core fields, 50
+Paper scale (docs/science.md section 2-3): NCP, 13 h of 120 s slots, the 48 LOFAR HBA core fields, 50
 channels of 195.3125 kHz from 150 MHz, a 50 x 50-pixel Q/U sky cube over 15 deg (2500
 sources), the LOFAR beam with the phase-centre correction, 30-180 wavelengths.
 """

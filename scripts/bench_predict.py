@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Benchmark ``msleak predict`` at the paper's scale, side by side with DP3.
 
-Default set-up (method.md 2, issue 5): NCP field (``--field 3c196`` for the other one), 48 LOFAR HBA core fields (CS*HBA*),
+Default set-up (docs/science.md section 2, issue 5): NCP field (``--field 3c196`` for the other one), 48 LOFAR HBA core fields (CS*HBA*),
 50 channels of 195.3125 kHz from 150 MHz, 120 s slots, 2500 polarized point sources on a
 50 x 50 grid over 15 x 15 deg (a makesourcedb file both tools read), the full LOFAR beam
 per station with the phase-centre correction. On one MS of ``--slots`` time slots:

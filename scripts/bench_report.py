@@ -146,7 +146,7 @@ def write_markdown(results: dict, path: Path) -> None:
         "side in the same run are more stable than absolute times. Each stage runs as its own "
         "process; wall time and peak resident memory (of the largest process of the stage) "
         "come from `/usr/bin/time -v`.", "",
-        "Paper scale (method.md 2-3): NCP field, 13 h of 120 s slots, the 48 LOFAR HBA core "
+        "Paper scale (docs/science.md section 2-3): NCP field, 13 h of 120 s slots, the 48 LOFAR HBA core "
         "fields (1128 baselines), 50 channels of 195.3125 kHz from 150 MHz, a 50 x 50-pixel "
         "Q/U cube over 15 deg (2500 point sources), the LOFAR beam with the phase-centre "
         "correction, 30-180 wavelengths. Rerun with `scripts/bench` (about 15 min; "

@@ -8,8 +8,9 @@ Steps whose output exists are skipped, so an interrupted run resumes.
 
 Two variants need msleak internals and run the predict command in a Python process that
 patches the beam model first (nothing in msleak changes):
-  frozen beam   BeamModel.jones gets every time replaced by one instant (the middle of the
-                observation); UVW, phases and station coordinates keep the real track.
+  frozen beam   BeamModel.jones gets every time replaced by one instant (the middle or
+                the first time slot of the MS); UVW, phases and station coordinates keep
+                the real track.
   element only  LofarFastBeam._jones returns the Hamaker element Jones of each station's
                 field (no tile or station array factor).
 The k-space regions (EoR window, wedge) are selected in this script from the PS product's
@@ -84,7 +85,7 @@ class Config:
     sky: dict = field(default_factory=dict)      # msleak sky options (besides --seed)
     seed: int = 2018
     predict: dict = field(default_factory=dict)  # msleak predict options
-    patch: str = ""                              # "", "frozen" or "element"
+    patch: str = ""                      # "", "frozen", "frozen-start" or "element"
     grid: dict = field(default_factory=dict)     # msleak grid options
     region: str = "all"                          # all | window | wedge
 
@@ -118,13 +119,15 @@ class Runner:
         if all(Path(o).exists() for o in outputs):
             return
         args = [str(a) for a in args]
-        if prelude:
-            cmd = [sys.executable, "-c", prelude + RUN_CLI, *(extra or []), "-q", *args]
-        else:
-            cmd = ["msleak", "-q", *args]
         print("+", " ".join(["msleak", *args]), flush=True)
         tick = time.perf_counter()
-        subprocess.run(cmd, check=True)
+        if prelude:  # a patched beam: its own process, so the patch stays there
+            subprocess.run([sys.executable, "-c", prelude + RUN_CLI, *(extra or []), "-q",
+                            *args], check=True)
+        else:  # msleak's click command in this process (saves the start-up per step)
+            from msleak.cli import cli
+
+            cli.main(args=["-q", *args], prog_name="msleak", standalone_mode=False)
         with open(self.log, "a") as fh:
             fh.write(f"{time.perf_counter() - tick:.1f}\t{' '.join(['msleak', *args])}\n")
 
@@ -147,21 +150,25 @@ def sky_cubes(run: Runner, c: Config, nchan: int) -> list[Path]:
 
 
 def measurement_set(run: Runner, c: Config) -> Path:
-    ms = run.out / "ms" / f"{c.field}_{key(c.sim)}.ms"
+    sim = {k: v for k, v in c.sim.items()
+           if not (k == "duration" and float(v) == PRESET_HOURS[c.field])}
+    ms = run.out / "ms" / f"{c.field}_{key(sim)}.ms"
     ms.parent.mkdir(parents=True, exist_ok=True)
     done = ms.with_suffix(".done")
     if not done.exists():
-        run.msleak(["simulate", ms, "--field", c.field, *opts(c.sim), "--overwrite"], [done])
+        run.msleak(["simulate", ms, "--field", c.field, *opts(sim), "--overwrite"], [done])
         done.touch()
     return ms
 
 
-def mid_time(ms: Path) -> float:
+def frozen_time(ms: Path, patch: str) -> float:
+    """The instant of a frozen beam: the middle time slot ("frozen") or the first one
+    ("frozen-start") of the MS."""
     from casacore.tables import table
 
     with table(str(ms), ack=False) as t:
         times = np.unique(t.getcol("TIME"))
-    return float(times[times.size // 2])
+    return float(times[0] if patch == "frozen-start" else times[times.size // 2])
 
 
 def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
@@ -174,8 +181,8 @@ def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
         args += ["--sky", sky, "--column", col]
     args += [*opts(c.predict), "--no-progress"]
     prelude, extra = "", None
-    if c.patch == "frozen":
-        prelude, extra = PATCH_FROZEN, [repr(mid_time(ms))]
+    if c.patch.startswith("frozen"):
+        prelude, extra = PATCH_FROZEN, [repr(frozen_time(ms, c.patch))]
     elif c.patch == "element":
         prelude = PATCH_ELEMENT
     if not done.exists():
@@ -256,43 +263,48 @@ def region_stats(ps_path: Path, region: str) -> tuple[float, float]:
 
 
 def configurations(quick: bool) -> list[Config]:
-    """Every configuration, in run order (baseline first)."""
+    """Every configuration, in run order: the most telling first, so that an interrupted
+    run has measured those."""
     red = {"stations": QUICK_STATIONS, "interval": 600}
-    tseries = dict(red) if quick else {"interval": 600}
-    out: list[Config] = []
-    for f in FIELDS:
-        out.append(Config("baseline", "reduced size", f, dict(red)))
-    if not quick:
-        for f in FIELDS:
-            out.append(Config("baseline", "full scale", f, {}))
+    one_field = {"stations": QUICK_STATIONS.replace("HBA*", "HBA0"), "interval": 600}
+    out: list[Config] = [Config("baseline", "reduced size", f, dict(red)) for f in FIELDS]
     for f in FIELDS:
         hours = (1, 2, 4, 8, 13) + ((24,) if f == "ncp" else ())
-        for h in hours:
-            out.append(Config("synthesis time", f"{h} h", f, {**tseries, "duration": h}))
+        out += [Config("synthesis time", f"{h} h", f, {**red, "duration": h}) for h in hours]
+    out += [Config("beam", "frozen at mid time", f, dict(red), patch="frozen") for f in FIELDS]
+    out += [Config("beam", "frozen at start time", f, dict(red), patch="frozen-start")
+            for f in FIELDS]
+    if not quick:
+        out += [Config("baseline", "full scale", f, {}) for f in FIELDS]
+    out += [Config("region", name, f, dict(red), region=r) for f in FIELDS
+            for r, name in (("window", "EoR window"), ("wedge", "wedge"))]
+    out += [Config("seeds", f"seed {s}", f, dict(red), seed=s) for s in SEEDS for f in FIELDS]
     for f in FIELDS:
         b = dict(red)
-        out += [Config("beam", "frozen at mid time", f, b, patch="frozen"),
-                Config("beam", "element only", f, b, patch="element"),
+        out += [Config("beam", "element only", f, b, patch="element"),
                 Config("beam", "no centre correction", f, b,
                        predict={"no-centre-correction": True}),
-                Config("beam", "dipole", f, b, predict={"beam": "dipole"}),
-                Config("integration", "120 s, 1 h", f, {**red, "interval": 120, "duration": 1}),
-                Config("integration", "10 s, 1 h", f, {**red, "interval": 10, "duration": 1}),
-                Config("stations", "24 fields (HBA0), 600 s", f,
-                       {"stations": "CS*HBA0", "interval": 600}),
-                Config("stations", "48 fields, 600 s", f, {"interval": 600}),
-                Config("grid", "cell 8 lambda", f, b, grid={"cell": 8}),
+                Config("beam", "dipole", f, b, predict={"beam": "dipole"})]
+    for f in FIELDS:
+        b = dict(red)
+        out += [Config("grid", "cell 8 lambda", f, b, grid={"cell": 8}),
                 Config("grid", "cell 24 lambda", f, b, grid={"cell": 24}),
                 Config("grid", "gridder cell", f, b, grid={"gridder": "cell"}),
-                Config("grid", "taper hann", f, b, grid={"taper": "hann"}),
-                Config("region", "EoR window", f, b, region="window"),
-                Config("region", "wedge", f, b, region="wedge"),
-                Config("sky", "b-index 3", f, b, sky={"b-index": 3.0}),
-                Config("sky", "b-index 4.5", f, b, sky={"b-index": 4.5}),
-                Config("sky", "ne-mean 0.0025 (Faraday depth x1/4)", f, b,
+                Config("grid", "taper hann", f, b, grid={"taper": "hann"})]
+    for f in FIELDS:
+        out += [Config("stations", "9 fields (HBA0 of the 9 stations)", f, one_field),
+                Config("integration", "120 s, 20 min", f,
+                       {**red, "interval": 120, "duration": 1 / 3}),
+                Config("integration", "10 s, 20 min", f,
+                       {**red, "interval": 10, "duration": 1 / 3})]
+    for f in FIELDS:
+        b = dict(red)
+        out += [Config("sky", "b-index 3 (flatter)", f, b, sky={"b-index": 3.0}),
+                Config("sky", "b-index 4.5 (steeper)", f, b, sky={"b-index": 4.5}),
+                Config("sky", "ne-mean 0.0025 (Faraday depths x1/4)", f, b,
                        sky={"ne-mean": 0.0025}),
-                Config("sky", "ne-mean 0.04 (Faraday depth x4)", f, b, sky={"ne-mean": 0.04})]
-        out += [Config("seeds", f"seed {s}", f, b, seed=s) for s in SEEDS]
+                Config("sky", "ne-mean 0.04 (Faraday depths x4)", f, b,
+                       sky={"ne-mean": 0.04})]
     return out
 
 

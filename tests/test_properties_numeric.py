@@ -120,7 +120,7 @@ finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
        feed=st.sampled_from(["linear", "circular"]))
 def test_stokes_correlation_round_trip(iquv, feed):
     """Real I, Q, U, V -> correlations -> Stokes is the identity; the correlations are the
-    brightness matrix of design.md (Hermitian: XY = conj(YX))."""
+    brightness matrix of docs/conventions.md (Hermitian: XY = conj(YX))."""
     from msleak.conventions import correlations_to_stokes, stokes_to_correlations
 
     s = np.asarray(iquv, float)

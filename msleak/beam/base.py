@@ -7,7 +7,7 @@ the direction (columns ``i``: 0 = North, 1 = East, as EveryBeam returns them wit
 parallactic rotation on) to the voltages of station ``p``'s two feeds (rows: X, Y or R, L).
 Directions below a station's horizon get a zero matrix (never NaN).
 
-Phase-centre correction (method.md section 4): with ``centre_correction=True``
+Phase-centre correction (docs/science.md section 4): with ``centre_correction=True``
 :meth:`BeamModel.jones` returns ``J_p(s0)^-1 J_p(s)`` per station, time and channel, where
 ``s0`` is the MS phase centre, so that ``J_p(s0)^-1 V_pq J_q(s0)^-H`` equals the sum over
 sources of ``(J0p^-1 Jp) B (J0q^-1 Jq)^H``.  A singular ``J_p(s0)`` (phase centre below the

@@ -53,7 +53,7 @@ def beam(ms, output, fov_deg, npix, hour_angles, freq_hz, beam_name, station, di
          product, invariant, basis, pdf):
     """Maps of the polarized beam sqrt(M11^2+M22^2) and of the Q,U->I leakage
     sqrt(M01^2+M02^2)/M00 of MS's station beams, normalised to the phase centre, in dB,
-    at several hour angles (method.md section 8).
+    at several hour angles (docs/science.md section 8).
 
     \b
     Examples:

@@ -28,14 +28,18 @@ def _observed(ctx, param, values):
 @click.option("--quick", is_flag=True, help="Reduced size (18 HBA fields, 2 h at 600 s, "
               "both fields, all three fields of view): about 3 minutes on 2 cores.")
 @click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
-              help="Seed of the sky model.")
+              help="Seed of the sky model (the first realisation).")
+@click.option("--seeds", type=click.IntRange(1, None), default=1, show_default=True,
+              help="Sky realisations (seeds SEED, SEED+1, ...) through the same MSs and "
+              "beams, predicted and gridded in one pass per field; the per-field estimate "
+              "is then their mean +- standard deviation.")
 @click.option("--field", "fields", type=click.Choice(["ncp", "3c196"]), multiple=True,
               help="Only these fields (repeatable) [default: both].")
 @click.option("--beam", type=click.Choice(["everybeam", "everybeam-direct", "dipole"]),
               default="everybeam", show_default=True, help="Beam model for predict and maps.")
 @click.option("--observed", multiple=True, callback=_observed, metavar="FIELD=Q.fits,U.fits",
               help="Observed Q and U image cubes of a field: adds its polarized PS and the "
-              "expected leakage (method.md 6-7). Repeatable.")
+              "expected leakage (docs/science.md section 6-7). Repeatable.")
 @click.option("--stations", default=None, metavar="PATTERN",
               help="Override the stations (e.g. 'CS00[1-7]HBA*') [48 HBA core fields; "
               "--quick: 18].")
@@ -48,8 +52,8 @@ def _observed(ctx, param, values):
               help="Override the number of channels of the MSs and the sky [50].")
 @click.option("--force", is_flag=True, help="Redo every step, even those up to date.")
 @click.pass_context
-def paper(ctx, outdir, quick, seed, fields, beam, observed, stations, duration_h, interval_s,
-          nchan, force):
+def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, duration_h,
+          interval_s, nchan, force):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
@@ -75,7 +79,7 @@ def paper(ctx, outdir, quick, seed, fields, beam, observed, stations, duration_h
             raise MsleakError(f"`msleak {' '.join(args)}` failed (exit {rc}); fix what it "
                               "said above and rerun `msleak paper` to resume")
 
-    cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed,
+    cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed, seeds=seeds,
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
                       interval_s=interval_s, nchan=nchan)

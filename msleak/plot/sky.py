@@ -18,7 +18,7 @@ __all__ = ["plot_sky_cube"]
 def plot_sky_cube(cube: SkyCube, path, *, channel: int = 0,
                   pixel: tuple[int, int] | None = None, pdf: bool = False) -> Path:
     """Four panels: Q and U at one channel, the Q/U/|P| spectrum of one pixel, and the
-    angular power spectrum of P = Q + iU at that channel (method.md section 8).
+    angular power spectrum of P = Q + iU at that channel (docs/science.md section 8).
 
     Parameters
     ----------

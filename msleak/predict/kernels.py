@@ -6,8 +6,8 @@ visibility V_pq = < e_p e_q^* > of a point source is then
 
     V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i (u l + v m + w (n - 1))),   (u, v, w) = uvw_pq / lambda
 
-which is method.md's exp(-2 pi i (u l + v m + w (n - 1))) written for the baseline
-vector x_p - x_q (the RIME's u_pq = u_p - u_q). This is exactly what DP3 computes from the
+which is the textbook exp(-2 pi i (u l + v m + w (n - 1))) (docs/science.md section 4)
+written for the baseline vector x_p - x_q (the RIME's u_pq = u_p - u_q). This is exactly what DP3 computes from the
 MS's UVW column (``base/Simulator.cc``: conj(phasor_p) phasor_q, phasor = exp(+2 pi i
 x . lmn / lambda)), and the DP3 comparison in the tests checks it end to end.
 
@@ -467,7 +467,7 @@ def gather_rows(gram: np.ndarray, tidx: np.ndarray, p: np.ndarray, q: np.ndarray
         0..nst-1) of every row; any order, autocorrelations allowed.
     jones_left : (nst | 1, ntime | 1, nchan | 1, 2, 2) complex, optional
         L_p with V'_pq = L_p V_pq L_q^H: the phase-centre correction L_p = J_p(s0)^-1
-        (method.md 4), which equals applying it to every source's Jones matrix.
+        (docs/science.md section 4), which equals applying it to every source's Jones matrix.
 
     Returns
     -------

@@ -2,7 +2,7 @@
 brightness factors.
 
 A FITS cube gives one source per pixel with the cube's spectrum (each voxel a point
-source at its own channel, method.md 3); a makesourcedb file gives parametric spectra.
+source at its own channel, docs/science.md section 3); a makesourcedb file gives parametric spectra.
 Sources sharing a direction are merged (their Stokes add), sources without flux on the
 channels are dropped, and so are directions 90 deg or more from the phase centre (they
 would need n <= 0: not in the visible hemisphere of the phase centre).

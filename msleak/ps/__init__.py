@@ -1,4 +1,4 @@
-"""Stokes power spectra from Measurement Sets or image cubes (method.md sections 5, 6).
+"""Stokes power spectra from Measurement Sets or image cubes (docs/science.md sections 5, 6).
 
 The flow is ``grid -> transform -> ps``:
 

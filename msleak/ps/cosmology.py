@@ -3,7 +3,7 @@
 All quantities are in Mpc (not h^-1 Mpc), s and Hz; the cosmology is an astropy
 cosmology chosen by name (default ``Planck18``).
 
-Formulas (method.md section 5)::
+Formulas (docs/science.md section 5)::
 
     z       = f21 / nu - 1,                   f21 = 1420.405751768 MHz
     X       = D_c(z)                          (Mpc per radian)

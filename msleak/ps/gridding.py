@@ -48,7 +48,7 @@ or the gridder, not the beam, sets the field of view.
     ``sum w V / sum w``. Response ``R = sinc(l cell) sinc(m cell)`` for dense sampling.
 
 Sign convention of the visibilities: ``V = sum B exp(-2 pi i (u l + v m + w (n - 1)))``
-(design.md) with (u, v, w) = uvw_p - uvw_q, i.e. minus the MS's UVW column (which holds
+(docs/conventions.md) with (u, v, w) = uvw_p - uvw_q, i.e. minus the MS's UVW column (which holds
 uvw_q - uvw_p); :func:`msleak.ps.uvcube.grid_ms` negates UVW accordingly
 (docs/conventions.md).
 """

@@ -1,4 +1,4 @@
-"""uv cubes from image cubes (method.md section 6): unit conversion and spatial FFT.
+"""uv cubes from image cubes (docs/science.md section 6): unit conversion and spatial FFT.
 
 An image cube ``S`` (chan, y, x) in Jy per pixel, with pixel offsets
 ``l = (x - x0) dl_x``, ``m = (y - y0) dl_y`` (rad, signed as CDELT1/2: RA pixels usually

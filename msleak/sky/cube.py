@@ -7,7 +7,7 @@ Conventions
 * The cubes msleak makes use the SIN (orthographic) projection about the phase centre,
   RA increasing to the left (CDELT1 < 0), LONPOLE = 180 deg so that the orientation is
   continuous up to and including the celestial pole (Dec = 90 exactly): the projection-
-  plane offsets are then the direction cosines (l, m) of method.md section 4,
+  plane offsets are then the direction cosines (l, m) of docs/science.md section 4,
   l = -(x - x_ref) * |CDELT1|, m = (y - y_ref) * CDELT2 (radians).
 * Brightness units are ``"K"`` (Rayleigh-Jeans brightness temperature) or ``"Jy/pixel"``
   (flux density of the pixel), related by S = 2 k_B T Omega_pix / lambda^2 with Omega_pix

@@ -190,7 +190,7 @@ def generate_foreground_cube(*, npix: int = 50, fov_deg: float = 15.0,
                              phase_centre: tuple[float, float] = (0.0, math.pi / 2),
                              seed: int | None = None,
                              params: ForegroundParams | None = None) -> SkyCube:
-    """Generate Q and U foreground cubes in K (method.md section 3).
+    """Generate Q and U foreground cubes in K (docs/science.md section 3).
 
     Parameters
     ----------

@@ -4,7 +4,7 @@
 
 * **tabulated** spectra (from a cube): ``freq`` (nchan_sky,) Hz and ``stokes``
   (nsrc, nchan_sky, 4) Jy; every voxel of the cube is a source at its pixel's direction
-  with (I, Q, U, V) at that channel (method.md section 3), or
+  with (I, Q, U, V) at that channel (docs/science.md section 3), or
 * **parametric** spectra with the semantics of DP3 (``base/PointSource.cc``):
   reference flux ``stokes_ref`` (nsrc, 4) Jy at ``ref_freq`` (nsrc,) Hz, spectral terms
   ``spectral_index`` (nsrc, nterms) applied to Stokes I only, logarithmic
@@ -258,7 +258,7 @@ class PointSources:
 def sources_from_cube(path_or_cube: str | os.PathLike | SkyCube, *,
                       fov_deg: float | None = None,
                       phase_centre: tuple[float, float] | None = None) -> PointSources:
-    """Every voxel of a cube as a point source, in Jy (method.md section 3).
+    """Every voxel of a cube as a point source, in Jy (docs/science.md section 3).
 
     Parameters
     ----------

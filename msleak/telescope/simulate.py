@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class FieldPreset:
-    """A named observing set-up of method.md section 2."""
+    """A named observing set-up of docs/science.md section 2."""
 
     name: str
     ra_deg: float
