@@ -51,3 +51,21 @@ def direct_dft(ms, sources):
                        * freq[None, :] / C)
         out += phase[:, :, None] * np.array([i + q, u + 1j * v, u - 1j * v, i - q])
     return out
+
+
+def split_qu_cube(cube, prefix: str = "") -> tuple[str, str]:
+    """Write the Q and U planes of an msleak sky cube as two cubes without a STOKES axis
+    (as imagers write them): ``{prefix}Q.fits`` and ``{prefix}U.fits``."""
+    from astropy.io import fits
+
+    with fits.open(cube) as hdul:
+        data, header = hdul[0].data, hdul[0].header
+    assert header["CTYPE4"] == "STOKES" and header["CRVAL4"] == 2       # Q, U
+    names = []
+    for k, stokes in enumerate("QU"):
+        single = header.copy()
+        for key in ("CTYPE4", "CRVAL4", "CDELT4", "CRPIX4"):
+            del single[key]
+        names.append(f"{prefix}{stokes}.fits")
+        fits.PrimaryHDU(data[k], single).writeto(names[-1])
+    return names[0], names[1]

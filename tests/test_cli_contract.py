@@ -21,6 +21,7 @@ from click.testing import CliRunner
 
 from msleak import __version__
 from msleak.cli import COMMANDS, cli
+from ms_helpers import split_qu_cube
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "msleak"
@@ -217,14 +218,7 @@ def test_readme_grid_image_example_runs_as_written(tmp_path, monkeypatch):
     runner = CliRunner()
     assert runner.invoke(cli, ["sky", "sky.fits", "--seed", "1", "--npix", "16",
                                "--nchan", "4"]).exit_code == 0
-    with fits.open("sky.fits") as hdul:
-        data, header = hdul[0].data, hdul[0].header
-    assert header["CTYPE4"] == "STOKES" and header["CRVAL4"] == 2       # Q, U
-    for k, stokes in enumerate("QU"):
-        single = header.copy()
-        for key in ("CTYPE4", "CRVAL4", "CDELT4", "CRPIX4"):
-            del single[key]
-        fits.PrimaryHDU(data[k], single).writeto(f"obs_{stokes}.fits")
+    split_qu_cube("sky.fits", "obs_")
     args = _readme_command("msleak grid --image obs_Q.fits")
     result = runner.invoke(cli, args)
     assert result.exit_code == 0, result.output

@@ -122,21 +122,14 @@ def test_observed_grid_step_runs_on_plain_q_and_u_cubes(tmp_path, monkeypatch):
     """``--observed ncp=Q.fits,U.fits`` with cubes that have no STOKES axis (as imagers
     write them): the study's observed-grid command grids them as Q and U, equal to the
     grid of the combined Q,U cube."""
-    from astropy.io import fits
-
     from msleak.pipeline import StudyConfig, study_steps
+    from ms_helpers import split_qu_cube
 
     monkeypatch.chdir(tmp_path)
     runner = CliRunner()
     assert runner.invoke(cli, ["sky", "sky.fits", "--seed", "2", "--npix", "16",
                                "--nchan", "4"]).exit_code == 0
-    with fits.open("sky.fits") as hdul:
-        data, header = hdul[0].data, hdul[0].header
-    for k, stokes in enumerate("QU"):
-        single = header.copy()
-        for key in ("CTYPE4", "CRVAL4", "CDELT4", "CRPIX4"):
-            del single[key]
-        fits.PrimaryHDU(data[k], single).writeto(f"{stokes}.fits")
+    split_qu_cube("sky.fits")
     cfg = StudyConfig(outdir=tmp_path / "study", fields=("ncp",),
                       observed={"ncp": ("Q.fits", "U.fits")})
     step = next(s for s in study_steps(cfg) if s.name == "observed-grid-ncp")
