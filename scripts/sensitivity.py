@@ -4,7 +4,8 @@ Called by scripts/sensitivity. Each configuration is one chain simulate -> sky -
 (15, 9 and 4 deg skies in one pass) -> grid -> transform -> ps -> leakage, and its result
 the per-field estimate msleak reports: the mean over the three fields of view of the data
 median of L_I over the power-spectrum voxels, with the mean of their bootstrap errors.
-Steps whose output exists are skipped, so an interrupted run resumes.
+Steps whose output exists are skipped, so an interrupted run resumes; results.json keeps
+each finished configuration (keyed by factor, label and field).
 
 Two variants need msleak internals and run the predict command in a Python process that
 patches the beam model first (nothing in msleak changes):
@@ -21,8 +22,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import json
-import shutil
 import subprocess
 import sys
 import time
@@ -36,6 +37,8 @@ FOVS = (("15deg", 50), ("9deg", 28), ("4deg", 16))
 PRESET_HOURS = {"ncp": 13.0, "3c196": 8.0}
 FIELDS = ("ncp", "3c196")
 SEEDS = (2018, 1, 2, 3, 4)
+FACTOR_ORDER = ["baseline", "synthesis time", "beam", "integration", "stations", "grid",
+                "region", "sky", "seeds"]
 
 PATCH_FROZEN = """
 import sys, numpy as np
@@ -173,7 +176,7 @@ def frozen_time(ms: Path, patch: str) -> float:
 
 def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
     pkey = f"seed{c.seed}_{key(c.sky)}_{key(c.predict)}_{c.patch or 'plain'}"
-    tag = _short(pkey)
+    tag = hashlib.sha1(pkey.encode()).hexdigest()[:8].upper()
     cols = [f"M{tag}_{label.upper()}" for label, _ in FOVS]
     done = ms.parent / f"{ms.stem}.{pkey}.done"
     args = ["predict", ms]
@@ -189,12 +192,6 @@ def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
         run.msleak(args, [done], prelude, extra)
         done.write_text(json.dumps(cols))
     return cols
-
-
-def _short(text: str) -> str:
-    import hashlib
-
-    return hashlib.sha1(text.encode()).hexdigest()[:8].upper()
 
 
 def spectra(run: Runner, c: Config, ms: Path, cols: list[str]) -> list[Path]:
@@ -276,6 +273,8 @@ def configurations(quick: bool) -> list[Config]:
             for f in FIELDS]
     if not quick:
         out += [Config("baseline", "full scale", f, {}) for f in FIELDS]
+    out.append(Config("beam", "frozen at mid time, 24 h (NCP only)", "ncp",
+                      {**red, "duration": 24}, patch="frozen"))
     out += [Config("region", name, f, dict(red), region=r) for f in FIELDS
             for r, name in (("window", "EoR window"), ("wedge", "wedge"))]
     out += [Config("seeds", f"seed {s}", f, dict(red), seed=s) for s in SEEDS for f in FIELDS]
@@ -305,16 +304,23 @@ def configurations(quick: bool) -> list[Config]:
                        sky={"ne-mean": 0.0025}),
                 Config("sky", "ne-mean 0.04 (Faraday depths x4)", f, b,
                        sky={"ne-mean": 0.04})]
+    out += [Config("integration", f"{dt} s, 20 min, beam frozen at mid time (3C196 only)",
+                   "3c196", {**red, "interval": dt, "duration": 1 / 3}, patch="frozen")
+            for dt in (120, 10)]
+    out += [Config("stations", "48 fields, 600 s", f, {"interval": 600}) for f in FIELDS]
+    out.append(Config("stations", "48 fields, 600 s, 24 h (NCP only)", "ncp",
+                      {"interval": 600, "duration": 24}))
     return out
 
 
-def write_table(results: list[dict], out: Path) -> None:
+def write_table(results: list[dict], configs: list[Config], out: Path) -> None:
     cols = ["factor", "label", "field", "hours", "median", "err", "fov_medians", "seconds"]
     with open(out / "sensitivity.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, cols, extrasaction="ignore", lineterminator="\n")
         w.writeheader()
         w.writerows(results)
-    by = {}
+    by = {k: {} for k in sorted(dict.fromkeys((c.factor, c.label) for c in configs),
+                                 key=lambda k: FACTOR_ORDER.index(k[0]))}
     for r in results:
         by.setdefault((r["factor"], r["label"]), {})[r["field"]] = r
     lines = ["| factor | configuration | NCP L_I (%) | 3C196 L_I (%) | NCP / 3C196 |",
@@ -327,13 +333,14 @@ def write_table(results: list[dict], out: Path) -> None:
         ratio = (f"{d['ncp']['median'] / d['3c196']['median']:.2f}"
                  if "ncp" in d and "3c196" in d else "-")
         lines.append(f"| {fac} | {lab} | {cells[0]} | {cells[1]} | {ratio} |")
-    seeds = [r for r in results if r["factor"] == "seeds"]
+    scatter = {}
     for f in FIELDS:
-        v = [r["median"] for r in seeds if r["field"] == f]
+        v = [r["median"] for r in results if r["factor"] == "seeds" and r["field"] == f]
         if len(v) > 1:
-            lines.append(f"| seeds | mean ± scatter of {len(v)} ({f.upper()}) | "
-                         + (f"{np.mean(v):.3f} ± {np.std(v, ddof=1):.3f} | |" if f == "ncp"
-                            else f"| {np.mean(v):.3f} ± {np.std(v, ddof=1):.3f} |") + " |")
+            scatter[f] = f"{np.mean(v):.3f} ± {np.std(v, ddof=1):.3f} ({len(v)})"
+    if scatter:
+        lines.append("| seeds | mean ± standard deviation (realisations) | "
+                     + " | ".join(scatter.get(f, "not run") for f in FIELDS) + " | - |")
     (out / "sensitivity.md").write_text("\n".join(lines) + "\n")
 
 
@@ -342,6 +349,7 @@ def draw(results: list[dict], out: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, (ax_t, ax_f) = plt.subplots(1, 2, figsize=(13, 7.5),
                                      gridspec_kw={"width_ratios": [1, 1.6]})
@@ -352,6 +360,12 @@ def draw(results: list[dict], out: Path) -> None:
             ax_t.errorbar([x["hours"] for x in r], [x["median"] for x in r],
                           [x["err"] for x in r], marker="o", capsize=3, color=colours[f],
                           label=f.upper())
+    for f in FIELDS:
+        r = [x for x in results if x["label"] == "full scale" and x["field"] == f]
+        if r:
+            ax_t.errorbar([r[0]["hours"]], [r[0]["median"]], [r[0]["err"]], marker="s",
+                          mfc="none", ms=10, capsize=3, color=colours[f], ls="none",
+                          label=f"{f.upper()} full scale")
     ax_t.set_xscale("log")
     ax_t.set_xticks([1, 2, 4, 8, 13, 24], ["1", "2", "4", "8", "13", "24"])
     ax_t.set_xlabel("synthesis time (h)")
@@ -359,7 +373,8 @@ def draw(results: list[dict], out: Path) -> None:
     ax_t.set_title("synthesis time")
     ax_t.legend()
     rows = [r for r in results if r["factor"] != "synthesis time"]
-    labels = list(dict.fromkeys((r["factor"], r["label"]) for r in rows))
+    labels = sorted(dict.fromkeys((r["factor"], r["label"]) for r in rows),
+                    key=lambda k: FACTOR_ORDER.index(k[0]))
     y = {lab: i for i, lab in enumerate(labels)}
     for k, f in enumerate(FIELDS):
         rr = [r for r in rows if r["field"] == f]
@@ -373,6 +388,10 @@ def draw(results: list[dict], out: Path) -> None:
     ax_f.set_yticks(range(len(labels)), [f"{a}: {b}" for a, b in labels], fontsize=8)
     ax_f.invert_yaxis()
     ax_f.set_xscale("log")
+    ax_f.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax_f.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax_f.set_xticks([0.1, 0.2, 0.3, 0.5, 0.7, 1, 1.5, 2, 3, 5, 10])
+    ax_f.grid(axis="x", alpha=0.3)
     ax_f.set_xlabel("per-field median L_I (%)  (dotted: reduced-size baseline)")
     ax_f.set_title("factors")
     ax_f.legend()
@@ -384,7 +403,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("outdir")
     ap.add_argument("--quick", action="store_true",
-                    help="no full-scale baseline; the synthesis-time series at reduced size")
+                    help="skip the two full-scale baseline runs")
     ap.add_argument("--only", default="", help="factors to run, comma-separated")
     a = ap.parse_args(argv)
     out = Path(a.outdir).resolve()
@@ -407,11 +426,10 @@ def main(argv=None) -> None:
         done_file.write_text(json.dumps(results, indent=1))
     order = {(c.factor, c.label, c.field): i for i, c in enumerate(configurations(a.quick))}
     results.sort(key=lambda r: order.get((r["factor"], r["label"], r["field"]), 1e9))
-    write_table(results, out)
+    write_table(results, configurations(a.quick), out)
     draw(results, out)
     print(f"wrote {out / 'sensitivity.md'}, sensitivity.csv, sensitivity.png")
 
 
 if __name__ == "__main__":
-    shutil.which("msleak") or sys.exit("msleak is not on PATH: run scripts/sensitivity")
     main()
