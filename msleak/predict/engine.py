@@ -202,7 +202,8 @@ def predict(ms: str | os.PathLike, sky: str | os.PathLike | Sequence[str | os.Pa
         makesourcedb text file. Several skies are predicted in one pass, each into its own
         column: per chunk the beam is evaluated once towards the union of their directions
         (directions with exactly the same (ra, dec) counted once: crops of one cube, cubes
-        on the same pixel grid), and each column equals that of a run with its sky alone.
+        on the same pixel grid); each column equals a run with its sky alone (to the bit
+        or, with the everybeam and dipole models, to 2e-7: docs/predict.md).
     fov_deg : float or sequence of float, optional
         Keep the central ``fov_deg`` x ``fov_deg`` of the sky (deg): one value for every
         sky, or one per sky (None: all of it).
@@ -377,34 +378,41 @@ def predict_many(ms_list: Sequence[str | os.PathLike],
                     raise InputError("--beam everybeam-direct reads the MS main table, which "
                                      "stays locked while predict writes it; use --scheduler "
                                      "threads or sync")
-        rollbacks: list[colio.Rollback] = []
-        try:
-            _create_columns(plans, rollbacks)
-            setup = _time.perf_counter() - t_start
-            for plan in plans:
-                plan.timings["setup"] = setup
-            bar = _progress_bar(sum(p.total_rows for p in plans), progress)
-            jobs = _all_chunks(plans, runner.memory_per_task, dtype, centre_correction, beam,
-                               restart, bar, _fault, t_start)
-            try:
-                _write_chunks(runner, jobs, plans, bar, t_start, _fail_after_chunks)
-            finally:
-                bar.close()
-                for plan in plans:
-                    if plan.stack is not None:
-                        plan.stack.close()
-                        plan.stack = None
-        except MsleakError as err:
-            from msleak.parallel.runner import WorkerLost
-
-            if not isinstance(err, WorkerLost):  # a refusal: undo; a lost worker: resumable
-                for rollback in reversed(rollbacks):  # each puts back the table it found
-                    rollback.restore()
-            raise
-        finally:
-            for rollback in rollbacks:
-                rollback.close()
+        _run(plans, runner, dtype, centre_correction, beam, restart, progress, t_start,
+             _fail_after_chunks, _fault)
     return [res for plan in plans for res in plan.results]
+
+
+def _run(plans: list, runner, dtype, centre_correction: bool, beam: str, restart: bool,
+         progress, t_start: float, fail_after_chunks, fault) -> None:
+    """Create the columns, compute and write every chunk; undo the run if it is refused."""
+    from msleak.parallel.runner import WorkerLost
+
+    rollbacks: list[colio.Rollback] = []
+    try:
+        _create_columns(plans, rollbacks)
+        setup = _time.perf_counter() - t_start
+        for plan in plans:
+            plan.timings["setup"] = setup
+        bar = _progress_bar(sum(p.total_rows for p in plans), progress)
+        jobs = _all_chunks(plans, runner.memory_per_task, dtype, centre_correction, beam,
+                           restart, bar, fault, t_start)
+        try:
+            _write_chunks(runner, jobs, plans, bar, t_start, fail_after_chunks)
+        finally:
+            bar.close()
+            for plan in plans:
+                if plan.stack is not None:
+                    plan.stack.close()
+                    plan.stack = None
+    except MsleakError as err:
+        if not isinstance(err, WorkerLost):  # a refusal: undo; a lost worker: resumable
+            for rollback in reversed(rollbacks):  # each puts back the table it found
+                rollback.restore()
+        raise
+    finally:
+        for rollback in rollbacks:
+            rollback.close()
 
 
 def _targets(sky, column, fov_deg, overwrite_data: bool) -> list[_Target]:

@@ -169,53 +169,132 @@ def column_layout(sign: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return colmap.reshape(sign.shape[1], sign.shape[0], 2), kpos.astype(np.int64), kneg.astype(np.int64)
 
 
+@nb.njit(nogil=True, cache=True)
+def _start_phases(xyz, t, lmn1, freq, c0, df, regular, phase, step, geo):
+    """Per-station phases exp(-2 pi i f x_p . lmn1 / c) at channel c0 and their step per
+    channel (regular channels)."""
+    two_pi_c = 2.0 * math.pi / 299_792_458.0
+    for p in range(xyz.shape[1]):
+        x0, x1, x2 = xyz[t, p, 0], xyz[t, p, 1], xyz[t, p, 2]
+        for s in range(lmn1.shape[0]):
+            g = -two_pi_c * (x0 * lmn1[s, 0] + x1 * lmn1[s, 1] + x2 * lmn1[s, 2])
+            geo[p, s] = g
+            phase[p, s] = complex(math.cos(g * freq[c0]), math.sin(g * freq[c0]))
+            if regular:
+                step[p, s] = complex(math.cos(g * df), math.sin(g * df))
+
+
+@nb.njit(nogil=True, cache=True)
+def _station_a(a, phase, p, jones, have_jones, jp, jt, jc):
+    """A_p(s) = phase_p(s) J_p(s) (4 entries, row-major) of station p, every direction."""
+    for s in range(a.shape[0]):
+        e = phase[p, s]
+        if have_jones:
+            a[s, 0] = e * jones[jp, jt, jc, s, 0, 0]
+            a[s, 1] = e * jones[jp, jt, jc, s, 0, 1]
+            a[s, 2] = e * jones[jp, jt, jc, s, 1, 0]
+            a[s, 3] = e * jones[jp, jt, jc, s, 1, 1]
+        else:
+            a[s, 0] = e
+            a[s, 1] = 0j
+            a[s, 2] = 0j
+            a[s, 3] = e
+
+
+@nb.njit(nogil=True, cache=True)
+def _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap, kpos, kneg):
+    """Rows 2p, 2p+1 of every sky's Z_k^T = (A_p W)^T at channel c.
+
+    Z_k^T of sky k is a C-order (2 nst, 2 ndir_k) array = Fortran (2 ndir_k, 2 nst) from
+    offset 2 nst * 2 ptr[k] of z: the rows of one station are written contiguously."""
+    for k in range(ptr.shape[0] - 1):
+        if kpos[k, c] + kneg[k, c] == 0:
+            continue
+        kmax = 2 * (ptr[k + 1] - ptr[k])
+        row = n2 * 2 * ptr[k] + 2 * p * kmax
+        zx = z[row:row + kmax]
+        zy = z[row + kmax:row + 2 * kmax]
+        for j in range(ptr[k], ptr[k + 1]):
+            s = dirs[j]
+            col0 = colmap[c, j, 0]
+            col1 = colmap[c, j, 1]
+            a00, a01, a10, a11 = a[s, 0], a[s, 1], a[s, 2], a[s, 3]
+            if col0 >= 0:
+                w00 = w[j, c, 0, 0]
+                w10 = w[j, c, 1, 0]
+                zx[col0] = a00 * w00 + a01 * w10
+                zy[col0] = a10 * w00 + a11 * w10
+            if col1 >= 0:
+                w01 = w[j, c, 0, 1]
+                w11 = w[j, c, 1, 1]
+                zx[col1] = a00 * w01 + a01 * w11
+                zy[col1] = a10 * w01 + a11 * w11
+
+
+@nb.njit(nogil=True, cache=True)
+def _herks(z, n2, t, c, ptr, kpos, kneg, gram):
+    """gram[k, t, c] += Z+ Z+^H - Z- Z-^H of every sky k (herk('U', 'C') on Z_k^T)."""
+    uplo = np.empty(1, dtype=np.uint8)
+    uplo[0] = 85  # 'U'
+    trans = np.empty(1, dtype=np.uint8)
+    trans[0] = 67  # 'C'
+    n_arr = np.empty(1, dtype=np.int32)
+    n_arr[0] = n2
+    k_arr = np.empty(1, dtype=np.int32)
+    lda = np.empty(1, dtype=np.int32)
+    alpha32 = np.empty(1, dtype=np.float32)
+    beta32 = np.ones(1, dtype=np.float32)
+    alpha64 = np.empty(1, dtype=np.float64)
+    beta64 = np.ones(1, dtype=np.float64)
+    for k in range(ptr.shape[0] - 1):
+        kp = kpos[k, c]
+        kk = kp + kneg[k, c]
+        if kk == 0:
+            continue
+        lda[0] = 2 * (ptr[k + 1] - ptr[k])
+        base = z.ctypes.data + n2 * 2 * ptr[k] * z.itemsize
+        out = gram[k, t, c]
+        for sgn in range(2):
+            k0 = 0 if sgn == 0 else kp
+            k1 = kp if sgn == 0 else kk
+            if k1 == k0:
+                continue
+            k_arr[0] = k1 - k0
+            zptr = base + k0 * z.itemsize
+            if gram.itemsize == 8:
+                alpha32[0] = 1.0 if sgn == 0 else -1.0
+                _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                       k_arr.ctypes.data, alpha32.ctypes.data, zptr, lda.ctypes.data,
+                       beta32.ctypes.data, out.ctypes.data, n_arr.ctypes.data)
+            else:
+                alpha64[0] = 1.0 if sgn == 0 else -1.0
+                _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                       k_arr.ctypes.data, alpha64.ctypes.data, zptr, lda.ctypes.data,
+                       beta64.ctypes.data, out.ctypes.data, n_arr.ctypes.data)
+
+
 @nb.njit(parallel=True, nogil=True, cache=True)
 def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, kpos,
             kneg, gram):
     nt, nst = xyz.shape[0], xyz.shape[1]
     ndir = lmn1.shape[0]
     nchan = freq.shape[0]
-    nsky = ptr.shape[0] - 1
     n2 = 2 * nst
     nblk = (nchan + block - 1) // block
-    two_pi_c = 2.0 * math.pi / 299_792_458.0
     for it in nb.prange(nt * nblk):
         t = it // nblk
         c0 = (it - t * nblk) * block
         c1 = min(nchan, c0 + block)
         jt = t if jones.shape[1] > 1 else 0
-        # per-station phase exp(-2 pi i f x_p . lmn1 / c): direct at c0, then
-        # multiplied by a constant step per channel when channels are regular
+        # phases direct at c0, then multiplied by a constant step per channel when the
+        # channels are regular (else evaluated per channel)
         phase = np.empty((nst, ndir), dtype=np.complex128)
         step = np.empty((nst, ndir), dtype=np.complex128)
         geo = np.empty((nst, ndir), dtype=np.float64)
         df = freq[c0 + 1] - freq[c0] if c1 - c0 > 1 else 0.0
-        for p in range(nst):
-            x0, x1, x2 = xyz[t, p, 0], xyz[t, p, 1], xyz[t, p, 2]
-            for s in range(ndir):
-                g = -two_pi_c * (x0 * lmn1[s, 0] + x1 * lmn1[s, 1] + x2 * lmn1[s, 2])
-                geo[p, s] = g
-                phase[p, s] = complex(math.cos(g * freq[c0]), math.sin(g * freq[c0]))
-                if regular:
-                    step[p, s] = complex(math.cos(g * df), math.sin(g * df))
-        # Z_k^T of sky k as a C-order (2 nst, 2 ndir_k) array = Fortran (2 ndir_k, 2 nst),
-        # stored from offset 2 nst * 2 ptr[k] of z: rows of one station are written
-        # contiguously; herk('U', 'C') then gives Z_k Z_k^H (transposed)
-        z = np.empty(n2 * 2 * ptr[nsky], dtype=gram.dtype)
-        a = np.empty((ndir, 4), dtype=np.complex128)  # A_p(s) = phase * J_p(s), one station
-        uplo = np.empty(1, dtype=np.uint8)
-        uplo[0] = 85  # 'U'
-        trans = np.empty(1, dtype=np.uint8)
-        trans[0] = 67  # 'C'
-        n_arr = np.empty(1, dtype=np.int32)
-        n_arr[0] = n2
-        k_arr = np.empty(1, dtype=np.int32)
-        lda = np.empty(1, dtype=np.int32)
-        single = gram.itemsize == 8
-        alpha32 = np.empty(1, dtype=np.float32)
-        beta32 = np.ones(1, dtype=np.float32)
-        alpha64 = np.empty(1, dtype=np.float64)
-        beta64 = np.ones(1, dtype=np.float64)
+        _start_phases(xyz, t, lmn1, freq, c0, df, regular, phase, step, geo)
+        z = np.empty(n2 * 2 * ptr[ptr.shape[0] - 1], dtype=gram.dtype)
+        a = np.empty((ndir, 4), dtype=np.complex128)
         for c in range(c0, c1):
             if c > c0:
                 for p in range(nst):
@@ -227,68 +306,10 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, co
                                                   math.sin(geo[p, s] * freq[c]))
             jc = c if jones.shape[2] > 1 else 0
             for p in range(nst):
-                jp = p if jones.shape[0] > 1 else 0
-                for s in range(ndir):
-                    e = phase[p, s]
-                    if have_jones:
-                        a[s, 0] = e * jones[jp, jt, jc, s, 0, 0]
-                        a[s, 1] = e * jones[jp, jt, jc, s, 0, 1]
-                        a[s, 2] = e * jones[jp, jt, jc, s, 1, 0]
-                        a[s, 3] = e * jones[jp, jt, jc, s, 1, 1]
-                    else:
-                        a[s, 0] = e
-                        a[s, 1] = 0j
-                        a[s, 2] = 0j
-                        a[s, 3] = e
-                for k in range(nsky):
-                    if kpos[k, c] + kneg[k, c] == 0:
-                        continue
-                    kmax = 2 * (ptr[k + 1] - ptr[k])
-                    row = n2 * 2 * ptr[k] + 2 * p * kmax
-                    zx = z[row:row + kmax]
-                    zy = z[row + kmax:row + 2 * kmax]
-                    for j in range(ptr[k], ptr[k + 1]):
-                        s = dirs[j]
-                        col0 = colmap[c, j, 0]
-                        col1 = colmap[c, j, 1]
-                        a00, a01, a10, a11 = a[s, 0], a[s, 1], a[s, 2], a[s, 3]
-                        if col0 >= 0:
-                            w00 = w[j, c, 0, 0]
-                            w10 = w[j, c, 1, 0]
-                            zx[col0] = a00 * w00 + a01 * w10
-                            zy[col0] = a10 * w00 + a11 * w10
-                        if col1 >= 0:
-                            w01 = w[j, c, 0, 1]
-                            w11 = w[j, c, 1, 1]
-                            zx[col1] = a00 * w01 + a01 * w11
-                            zy[col1] = a10 * w01 + a11 * w11
-            for k in range(nsky):
-                kp = kpos[k, c]
-                kk = kp + kneg[k, c]
-                if kk == 0:
-                    continue
-                lda[0] = 2 * (ptr[k + 1] - ptr[k])
-                base = z.ctypes.data + n2 * 2 * ptr[k] * z.itemsize
-                out = gram[k, t, c]
-                for sgn in range(2):
-                    k0 = 0 if sgn == 0 else kp
-                    k1 = kp if sgn == 0 else kk
-                    if k1 == k0:
-                        continue
-                    k_arr[0] = k1 - k0
-                    zptr = base + k0 * z.itemsize
-                    if single:
-                        alpha32[0] = 1.0 if sgn == 0 else -1.0
-                        _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
-                               k_arr.ctypes.data, alpha32.ctypes.data, zptr,
-                               lda.ctypes.data, beta32.ctypes.data, out.ctypes.data,
-                               n_arr.ctypes.data)
-                    else:
-                        alpha64[0] = 1.0 if sgn == 0 else -1.0
-                        _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
-                               k_arr.ctypes.data, alpha64.ctypes.data, zptr,
-                               lda.ctypes.data, beta64.ctypes.data, out.ctypes.data,
-                               n_arr.ctypes.data)
+                _station_a(a, phase, p, jones, have_jones, p if jones.shape[0] > 1 else 0,
+                           jt, jc)
+                _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap, kpos, kneg)
+            _herks(z, n2, t, c, ptr, kpos, kneg, gram)
 
 
 def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
@@ -399,9 +420,10 @@ def _pack_skies(skies, ndir: int, nchan: int):
     kpos = np.zeros((len(skies), nchan), dtype=np.int64)
     kneg = np.zeros((len(skies), nchan), dtype=np.int64)
     for k, (_, wk, sign) in enumerate(skies):
-        if np.shape(wk) != (index[k].size, nchan, 2, 2) or np.shape(sign) != (index[k].size, nchan, 2):
-            raise ValueError(f"sky {k}: w and sign must have shapes ({index[k].size}, {nchan}, "
-                             f"2, 2) and ({index[k].size}, {nchan}, 2)")
+        n = index[k].size
+        if np.shape(wk) != (n, nchan, 2, 2) or np.shape(sign) != (n, nchan, 2):
+            raise ValueError(f"sky {k}: w and sign must have shapes ({n}, {nchan}, 2, 2) and "
+                             f"({n}, {nchan}, 2)")
         w[ptr[k]:ptr[k + 1]] = wk
         colmap[:, ptr[k]:ptr[k + 1]], kpos[k], kneg[k] = column_layout(sign)
     return dirs, ptr, w, colmap, kpos, kneg
