@@ -20,7 +20,7 @@ import math
 import numba as nb
 import numpy as np
 
-from msleak.predict.kernels import _regular_spacing
+from msleak.predict.kernels import C_LIGHT, _regular_spacing
 
 __all__ = ["predict_rows"]
 
@@ -31,7 +31,7 @@ def _rows(jones, have_jones, left, have_left, tidx, p, q, uvw, lmn1, freq, regul
     nrow = tidx.shape[0]
     ndir = lmn1.shape[0]
     nchan = freq.shape[0]
-    two_pi_c = 2.0 * math.pi / 299_792_458.0
+    two_pi_c = 2.0 * math.pi / C_LIGHT
     df = freq[1] - freq[0] if nchan > 1 else 0.0
     for r in nb.prange(nrow):
         t, a, b = tidx[r], p[r], q[r]

@@ -470,7 +470,7 @@ def _write_chunks(runner, jobs, plans: list, bar, t_start: float,
     """Compute the chunks on ``runner`` and write them in order, updating the run states."""
     chunks_done = 0
     with contextlib.closing(runner.map(_chunk_task, jobs)) as done:
-        for job, (vis, timings) in done:
+        for job, (vis, timings, n_per_baseline) in done:
             plan = plans[job.plan]
             tick = _time.perf_counter()
             row_time = job.times[job.tidx]
@@ -479,7 +479,7 @@ def _write_chunks(runner, jobs, plans: list, bar, t_start: float,
             del vis
             colio.write_run_state(plan.table, plan.states)
             _add(plan.timings, "write", tick)
-            plan.rows_per_baseline += int(timings.pop("rows_per_baseline", 0))
+            plan.rows_per_baseline += n_per_baseline
             for key, value in timings.items():
                 plan.timings[key] = plan.timings.get(key, 0.0) + value
             plan.n_slots += int(job.times.size)
@@ -766,22 +766,22 @@ def _chunk_size(plan: _Plan, comp: SkySet, ntime: int, nchan: int, nstation: int
                        dtype.itemsize, has_beam, fixed, nsky=len(plan.active))
 
 
-def _chunk_task(job: _Chunk, _shared=None) -> tuple[list, dict]:
-    """Visibilities (nrow, nchan, ncorr) of one chunk for each sky of ``job.active``, and
-    the task's stage timings (pure computation on the job's arrays; the beam model is
-    loaded once per process)."""
+def _chunk_task(job: _Chunk, _shared=None) -> tuple[list, dict, int]:
+    """Visibilities (nrow, nchan, ncorr) of one chunk for each sky of ``job.active``, the
+    task's stage timings, and the number of rows predicted per baseline (pure computation
+    on the job's arrays; the beam model is loaded once per process)."""
     if job.fault is not None:
         _simulate_fault(job)
     beam_model = _cached_beam(job.beam, job.ms, job.beam_token, job.beam_options)
     timings: dict = {}
-    vis = _predict_chunk(job.comp, beam_model, job.times, job.freq, job.stations, job.fmeta,
+    vis, n_per_baseline = _predict_chunk(job.comp, beam_model, job.times, job.freq, job.stations, job.fmeta,
                          job.tidx, job.p, job.q, job.uvw, job.centre_correction,
                          np.dtype(job.dtype), job.nc_chunk, timings, job.active)
     for k, values in enumerate(vis):
         if job.layout.feed == "circular":
             values = kernels.linear_to_circular(values)
         vis[k] = job.layout.from_canonical(values)  # the MS's products, in its order
-    return vis, timings
+    return vis, timings, n_per_baseline
 
 
 def _simulate_fault(job: _Chunk) -> None:
@@ -804,18 +804,18 @@ def _simulate_fault(job: _Chunk) -> None:
 def _predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                    stations: np.ndarray, fmeta, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
                    uvw: np.ndarray, centre_correction: bool, dtype: np.dtype,
-                   nc_chunk: int, timings: dict, active: Sequence[int] = (0,)) -> list:
+                   nc_chunk: int, timings: dict, active: Sequence[int] = (0,)
+                   ) -> tuple[list, int]:
     """Visibilities (nrow, nchan, 4) of one time chunk (linear feeds) for each sky
-    ``comp.skies[k]``, k in ``active``.
+    ``comp.skies[k]``, k in ``active``, and the number of rows computed from their own UVW
+    (not antenna-based within the tolerance).
 
     The beam is evaluated once towards every direction of ``comp``. Adds the stage wall
-    times to ``timings``, and under ``rows_per_baseline`` the number of rows computed
-    from their own UVW.
+    times to ``timings``.
     """
     tick = _time.perf_counter()
     xyz, off = station_coordinates(tidx, p, q, uvw, times.size, stations.size,
                                    tolerance_m=uvw_tolerance(freq.max(), comp.lmn1))
-    timings["rows_per_baseline"] = timings.get("rows_per_baseline", 0) + int(off.sum())
     fast = np.flatnonzero(~off) if off.any() else slice(None)
     _add(timings, "uvw", tick)
     skies = [(comp.index[k], comp.skies[k]) for k in active]
@@ -844,7 +844,7 @@ def _predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray
                     jones_left=left, dtype=dtype)
             _add(timings, "per_baseline", tick)
         del jones
-    return outs
+    return outs, int(off.sum())
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

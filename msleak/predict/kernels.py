@@ -49,6 +49,7 @@ import numba as nb
 import numpy as np
 from numba import types
 
+from msleak.conventions import LINEAR_TO_CIRCULAR_FEEDS
 from msleak.predict._blas import HERK_SYMBOLS, register_herk, single_threaded_blas
 
 __all__ = [
@@ -68,11 +69,11 @@ __all__ = [
 #: Speed of light in vacuum (m/s).
 C_LIGHT = 299_792_458.0
 
-#: (RR, RL, LR, LL) = LINEAR_TO_CIRCULAR @ (XX, XY, YX, YY): kron(T, conj(T)) with
-#: R = (X + iY)/sqrt(2), L = (X - iY)/sqrt(2), which maps the linear brightness matrix
-#: [[I+Q, U+iV], [U-iV, I-Q]] to the circular one [[I+V, Q+iU], [Q-iU, I-V]].
-_T = np.array([[1, 1j], [1, -1j]]) / np.sqrt(2.0)
-LINEAR_TO_CIRCULAR = np.kron(_T, _T.conj())
+#: (RR, RL, LR, LL) = LINEAR_TO_CIRCULAR @ (XX, XY, YX, YY): kron(C, conj(C)) with C the
+#: feed change of basis of :data:`msleak.conventions.LINEAR_TO_CIRCULAR_FEEDS`, which maps
+#: the linear brightness matrix [[I+Q, U+iV], [U-iV, I-Q]] to the circular one
+#: [[I+V, Q+iU], [Q-iU, I-V]].
+LINEAR_TO_CIRCULAR = np.kron(LINEAR_TO_CIRCULAR_FEEDS, LINEAR_TO_CIRCULAR_FEEDS.conj())
 
 register_herk()
 _ARG = types.uintp  # pointer arguments of the Fortran BLAS interface (x86-64/aarch64 ABI)
