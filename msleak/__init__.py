@@ -1,14 +1,42 @@
 """msleak: polarization leakage (Stokes Q/U -> I) of radio primary beams and its effect
 on 21-cm power spectra, measured from any Measurement Set.
 
+The verbs below are the Python API; each ``msleak`` command is a thin wrapper over one of
+them (docs/api.md). They are imported on first use, so ``import msleak`` stays light.
 The package never configures logging itself; the command-line interface does.
 """
 
+import importlib
 import logging
 
-from msleak.errors import MsleakError
+from msleak.errors import ConfigurationError, InputError, MsleakError
 
 __version__ = "0.1.0"
-__all__ = ["__version__", "MsleakError"]
+
+#: public verb -> "module:function"
+_VERBS = {
+    "simulate": "msleak.telescope.simulate:simulate",
+    "make_sky": "msleak.sky.make:make_sky",
+    "beam_maps": "msleak.beam.maps:beam_maps",
+    "predict": "msleak.predict.engine:predict",
+    "grid": "msleak.ps.grid:grid",
+    "transform": "msleak.ps.transform:transform",
+    "power_spectrum": "msleak.ps.power:power_spectrum",
+    "leakage": "msleak.leakage.analysis:leakage",
+}
+
+__all__ = ["__version__", "MsleakError", "InputError", "ConfigurationError", *_VERBS]
+
+
+def __getattr__(name: str):
+    if name in _VERBS:
+        module, func = _VERBS[name].split(":")
+        return getattr(importlib.import_module(module), func)
+    raise AttributeError(f"module 'msleak' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_VERBS))
+
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -157,13 +157,14 @@ freqs = st.floats(60e6, 240e6)
 def test_cosmology_monotone(f1, f2, name):
     """Higher observed frequency: lower redshift, smaller D_c and X, larger k_perp for
     the same baseline (and z = f21 / nu - 1 exactly)."""
-    from msleak.ps.cosmology import F21_HZ, cosmo_at
+    from msleak.constants import FREQ_21CM
+    from msleak.ps.cosmology import cosmo_at
 
     if abs(f1 - f2) < 1e3:
         return
     lo, hi = sorted((f1, f2))
     a, b = cosmo_at(lo, name), cosmo_at(hi, name)
-    assert a.z == pytest.approx(F21_HZ / lo - 1, rel=1e-12)
+    assert a.z == pytest.approx(FREQ_21CM / lo - 1, rel=1e-12)
     assert a.z > b.z and a.dc_mpc > b.dc_mpc and a.efunc > b.efunc
     assert a.k_perp(100.0) < b.k_perp(100.0)
     assert a.y_mpc_per_hz > b.y_mpc_per_hz
@@ -174,7 +175,8 @@ def test_cosmology_monotone(f1, f2, name):
 def test_cosmology_invertible(freq, b, tau):
     """k_perp and k_par invert to the baseline and delay (X and Y), and Y is the
     derivative of the comoving distance with frequency: Y = -dD_c/dnu (numerical)."""
-    from msleak.ps.cosmology import F21_HZ, cosmo_at, get_cosmology
+    from msleak.constants import FREQ_21CM
+    from msleak.ps.cosmology import cosmo_at, get_cosmology
 
     c = cosmo_at(freq)
     assert c.k_perp(b) * c.x_mpc_per_rad / (2 * np.pi) == pytest.approx(b, rel=1e-12, abs=1e-12)
@@ -183,7 +185,7 @@ def test_cosmology_invertible(freq, b, tau):
     assert np.sign(c.k_par(tau)) == np.sign(tau)
     cosmo = get_cosmology("Planck18")
     dnu = 1e3
-    dc = [cosmo.comoving_distance(F21_HZ / (freq + s * dnu) - 1).to_value("Mpc") for s in (-1, 1)]
+    dc = [cosmo.comoving_distance(FREQ_21CM / (freq + s * dnu) - 1).to_value("Mpc") for s in (-1, 1)]
     assert -(dc[1] - dc[0]) / (2 * dnu) == pytest.approx(c.y_mpc_per_hz, rel=1e-6)
 
 

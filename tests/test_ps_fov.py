@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from msleak.ps.gridding import (MASK_FRACTION, SPEED_OF_LIGHT, airy_power, beam_area_model,
+from msleak.constants import SPEED_OF_LIGHT
+from msleak.ps.gridding import (MASK_FRACTION, airy_power, beam_area_model,
                                 box_factor, gridder_response, make_accumulator, make_grid,
                                 primary_fwhm_deg, response_attrs)
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from msleak.errors import InputError
-from msleak.ps.gridding import (SPEED_OF_LIGHT, CellAccumulator, image_taper,
+from msleak.constants import SPEED_OF_LIGHT
+from msleak.ps.gridding import (CellAccumulator, image_taper,
                                 make_accumulator, make_grid, stokes_weights,
                                 wgrid_kernel_bruteforce)
 

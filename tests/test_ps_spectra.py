@@ -5,7 +5,8 @@ import pytest
 import xarray as xr
 
 from msleak.errors import InputError
-from msleak.ps.cosmology import F21_HZ, cosmo_at, get_cosmology
+from msleak.constants import FREQ_21CM
+from msleak.ps.cosmology import cosmo_at, get_cosmology
 from msleak.ps.delay import delay_axis, delay_transform, spectral_window
 from msleak.ps.spectra import power_spectrum, transform_uvcube
 from msleak.ps.uvcube import uvcube_dataset
@@ -102,7 +103,8 @@ def test_k_perp_k_par_match_astropy():
 
 
 def test_point_source_at_centre_only_k_par_zero():
-    from msleak.ps.gridding import SPEED_OF_LIGHT, make_accumulator, make_grid
+    from msleak.constants import SPEED_OF_LIGHT
+    from msleak.ps.gridding import make_accumulator, make_grid
 
     rng = np.random.default_rng(2)
     nrow, nchan = 600, 16
@@ -148,12 +150,13 @@ def test_cross_power_removes_noise_bias():
 
 
 def test_mk2_normalisation_formula():
-    from msleak.ps.cosmology import BOLTZMANN, jy2_to_mk2_mpc3
+    from msleak.constants import BOLTZMANN
+    from msleak.ps.cosmology import jy2_to_mk2_mpc3
 
     c = cosmo_at(155e6)
     lam = 299792458.0 / 155e6
     omega, bw = 0.01, 10e6
-    x, y = c.dc_mpc, c.dh_mpc * (1 + c.z) ** 2 / (F21_HZ * c.efunc)
+    x, y = c.dc_mpc, c.dh_mpc * (1 + c.z) ** 2 / (FREQ_21CM * c.efunc)
     expect = bw * (1e-26 * lam ** 2 / (2 * BOLTZMANN)) ** 2 * x ** 2 * y / omega * 1e6
     assert jy2_to_mk2_mpc3(c, omega, bw) == pytest.approx(expect, rel=1e-12)
 

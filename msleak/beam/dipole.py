@@ -44,7 +44,7 @@ __all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
 log = logging.getLogger(__name__)
 
 StationFactor = Literal["airy", "gaussian", "none"]
-_C = 299792458.0
+from msleak.constants import SPEED_OF_LIGHT
 _NCP = np.array([0.0, 0.0, 1.0])
 
 
@@ -61,12 +61,12 @@ def station_factor(kind: StationFactor, theta: np.ndarray, freq: np.ndarray,
     if kind == "airy":
         from scipy.special import j1
 
-        u = np.pi * diameter_m * freq[:, None] * np.sin(theta)[None, :] / _C
+        u = np.pi * diameter_m * freq[:, None] * np.sin(theta)[None, :] / SPEED_OF_LIGHT
         small = np.abs(u) < 1e-8
         safe = np.where(small, 1.0, u)
         return np.where(small, 1.0 - u ** 2 / 8, 2 * j1(safe) / safe)
     if kind == "gaussian":
-        fwhm = 1.02 * _C / (freq[:, None] * diameter_m)
+        fwhm = 1.02 * SPEED_OF_LIGHT / (freq[:, None] * diameter_m)
         return np.exp(-2 * np.log(2) * (theta[None, :] / fwhm) ** 2)
     raise InputError(f"unknown station factor {kind!r}: use airy, gaussian or none")
 
@@ -101,7 +101,7 @@ def dipole_jones(d: np.ndarray, north: np.ndarray, east: np.ndarray, enu: np.nda
     proj[cosz < 0] = 0
     out = np.broadcast_to(proj, (freq.size, len(d), 2, 2)).astype(complex)
     if ground_plane_height_m is not None:
-        g = 2 * np.sin(2 * np.pi * freq[:, None] * ground_plane_height_m * cosz[None, :] / _C)
+        g = 2 * np.sin(2 * np.pi * freq[:, None] * ground_plane_height_m * cosz[None, :] / SPEED_OF_LIGHT)
         out = out * g[:, :, None, None]
     return out
 

@@ -31,10 +31,11 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["station_jones_kernel", "sincos", "SPEED_OF_LIGHT", "apply_left_inverse"]
+from msleak.constants import SPEED_OF_LIGHT
+
+__all__ = ["station_jones_kernel", "sincos", "apply_left_inverse"]
 
 #: m/s, the value EveryBeam uses (common::c)
-SPEED_OF_LIGHT = 299792458.0
 
 # directions per parallel work item
 _BLOCK = 32

@@ -25,7 +25,7 @@ __all__ = [
     "check_ms", "open_table", "column_names", "data_column_names", "read_spectral_windows",
     "read_data_descriptions", "read_corr_types", "read_fields", "read_antennas",
     "read_used_antennas", "read_times", "read_telescope_name", "has_lofar_tables", "iter_rows",
-    "ms_summary",
+    "append_history", "read_history", "ms_summary",
 ]
 
 log = logging.getLogger(__name__)
@@ -265,6 +265,49 @@ def iter_rows(ms: str | os.PathLike, columns: Sequence[str], *, chunk_rows: int 
         finally:
             if sel is not table:
                 sel.close()
+
+
+def append_history(ms: str | os.PathLike, message: str, *, command: str = "") -> None:
+    """Add one row to the MS HISTORY subtable (as DP3 and CASA tasks do): the time, the
+    message, the application ``msleak <version>`` and the command line.
+
+    Does nothing when the MS has no HISTORY subtable (it is optional in the MS definition).
+    """
+    from msleak import __version__
+
+    ms = check_ms(ms)
+    path = ms / "HISTORY"
+    if not path.exists():
+        log.debug("%s has no HISTORY subtable; no history row written", ms)
+        return
+    now = (np.datetime64("now", "s") - np.datetime64("1858-11-17T00:00:00", "s"))
+    with open_table(path, readonly=False) as t:
+        names = t.colnames()
+        row = t.nrows()
+        t.addrows(1)
+        values = {"TIME": float(now / np.timedelta64(1, "s")), "OBSERVATION_ID": 0,
+                  "MESSAGE": message, "PRIORITY": "NORMAL", "ORIGIN": "msleak",
+                  "OBJECT_ID": 0, "APPLICATION": f"msleak {__version__}",
+                  "CLI_COMMAND": [command or message], "APP_PARAMS": [""]}
+        for name, value in values.items():
+            if name in names:
+                t.putcell(name, row, value)
+
+
+def read_history(ms: str | os.PathLike) -> list[str]:
+    """The HISTORY subtable's rows as ``"<application>: <message>"`` lines, oldest first
+    (empty when the MS has none)."""
+    ms = check_ms(ms)
+    path = ms / "HISTORY"
+    if not path.exists():
+        return []
+    with open_table(path) as t:
+        if t.nrows() == 0:
+            return []
+        order = np.argsort(t.getcol("TIME"), kind="stable")
+        apps = t.getcol("APPLICATION") if "APPLICATION" in t.colnames() else [""] * t.nrows()
+        msgs = t.getcol("MESSAGE")
+    return [f"{apps[i]}: {msgs[i]}".strip(": ") for i in order]
 
 
 def ms_summary(ms: str | os.PathLike) -> str:

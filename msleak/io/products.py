@@ -9,6 +9,10 @@ present:
 ``msleak_format``    the product format version (an integer, bumped on layout changes)
 ``command``          the command line that made it
 ``created``          UTC time stamp (ISO 8601)
+``history``          the whole chain that made it, oldest first, one line per step
+                     (the CF ``history`` attribute): the source MS's HISTORY rows and
+                     column provenance, then every msleak command up to this one
+``Conventions``      ``CF-1.10``
 
 The layouts of each kind are documented in docs/products.md.
 """
@@ -27,10 +31,13 @@ import xarray as xr
 from msleak import __version__
 from msleak.errors import InputError
 
-__all__ = ["FORMAT_VERSION", "save_product", "open_product", "command_line"]
+__all__ = ["FORMAT_VERSION", "CF_CONVENTIONS", "save_product", "open_product", "command_line",
+           "history_lines"]
 
 #: Layout version of every product kind written by this msleak.
 FORMAT_VERSION = 1
+#: the CF conventions version the products' attributes follow where they can
+CF_CONVENTIONS = "CF-1.10"
 
 #: errno values of a write the user can fix: no space, quota, file too large, read-only
 #: file system, permission denied.
@@ -43,9 +50,19 @@ def command_line() -> str:
     return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
 
 
+def history_lines(attrs: dict) -> list[str]:
+    """The ``history`` chain stored in a product's (or dataset's) attributes."""
+    text = attrs.get("history", "")
+    return [line for line in str(text).splitlines() if line.strip()]
+
+
 def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
-                 overwrite: bool = True) -> Path:
+                 overwrite: bool = True, history: Iterable[str] = ()) -> Path:
     """Write ``ds`` as an msleak product of the given kind; returns the path.
+
+    ``history`` is the chain of the inputs (e.g. :func:`history_lines` of the input
+    product); this write's own line (time, version, command) is appended to it, and to
+    whatever ``ds.attrs["history"]`` already holds when ``history`` is empty.
 
     The file is written to a temporary name and renamed, so an interrupted or failed
     write (full disk: a one-line :class:`InputError`) never leaves a truncated product
@@ -64,6 +81,10 @@ def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     })
     ds.attrs.setdefault("command", command_line())
+    chain = list(history) or history_lines(ds.attrs)
+    chain.append(f"{ds.attrs['created']} msleak {__version__}: {ds.attrs['command']}")
+    ds.attrs["history"] = "\n".join(chain)
+    ds.attrs["Conventions"] = CF_CONVENTIONS
     for name, value in list(ds.attrs.items()):
         if isinstance(value, bool):
             ds.attrs[name] = int(value)

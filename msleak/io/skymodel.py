@@ -37,7 +37,7 @@ from msleak.sky.sources import PointSources
 __all__ = ["read_skymodel", "write_skymodel", "parse_angle", "format_ra", "format_dec",
            "KNOWN_FIELDS"]
 
-C_LIGHT = 299_792_458.0
+from msleak.constants import SPEED_OF_LIGHT
 
 KNOWN_FIELDS = ("Name", "Type", "RefType", "Ra", "Dec", "I", "Q", "U", "V", "SpectralIndex",
                 "LogarithmicSI", "ReferenceFrequency", "MajorAxis", "MinorAxis",
@@ -336,13 +336,13 @@ def _assemble(rows) -> PointSources:
     for k in np.nonzero(np.isfinite(rm) & np.array(rows["qu_given"]))[0]:
         # DP3 calcRMParam: fraction of I at the RM reference wavelength, angle at lambda=0
         refwl = rows["refwl"][k]
-        lam = refwl if refwl is not None else C_LIGHT / nu0[k]
+        lam = refwl if refwl is not None else SPEED_OF_LIGHT / nu0[k]
         i_ref = iquv[k, 0]
         if si[k].any():
             if lam <= 0:
                 raise InputError("no RM reference wavelength for a source with a spectral "
                                  "index")
-            vv0 = (C_LIGHT / lam) / nu0[k]
+            vv0 = (SPEED_OF_LIGHT / lam) / nu0[k]
             base = math.log10(vv0)
             i_ref *= vv0 ** float(np.polynomial.polynomial.polyval(base, si[k]))
         pf[k] = math.hypot(iquv[k, 1], iquv[k, 2]) / i_ref
@@ -425,7 +425,7 @@ def write_skymodel(path: str | os.PathLike, sources: PointSources, *,
         for k in range(n):
             i, q, u, v = sources.stokes_ref[k]
             if has_rm[k] and not pfpa[k]:
-                lam2 = (C_LIGHT / nu0[k]) ** 2
+                lam2 = (SPEED_OF_LIGHT / nu0[k]) ** 2
                 p = i * sources.pol_fraction[k]
                 chi = 2 * (sources.pol_angle[k] + rm[k] * lam2)
                 q, u = p * math.cos(chi), p * math.sin(chi)

@@ -20,7 +20,8 @@ import math
 import numba as nb
 import numpy as np
 
-from msleak.predict.kernels import C_LIGHT, _regular_spacing
+from msleak.constants import SPEED_OF_LIGHT
+from msleak.predict.kernels import _regular_spacing
 
 __all__ = ["predict_rows"]
 
@@ -31,7 +32,7 @@ def _rows(jones, have_jones, left, have_left, tidx, p, q, uvw, lmn1, freq, regul
     nrow = tidx.shape[0]
     ndir = lmn1.shape[0]
     nchan = freq.shape[0]
-    two_pi_c = 2.0 * math.pi / C_LIGHT
+    two_pi_c = 2.0 * math.pi / SPEED_OF_LIGHT
     df = freq[1] - freq[0] if nchan > 1 else 0.0
     for r in nb.prange(nrow):
         t, a, b = tidx[r], p[r], q[r]

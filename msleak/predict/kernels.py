@@ -53,7 +53,6 @@ from msleak.conventions import LINEAR_TO_CIRCULAR_FEEDS
 from msleak.predict._blas import HERK_SYMBOLS, register_herk, single_threaded_blas
 
 __all__ = [
-    "C_LIGHT",
     "lmn_minus_one",
     "brightness_factors",
     "column_layout",
@@ -67,7 +66,7 @@ __all__ = [
 ]
 
 #: Speed of light in vacuum (m/s).
-C_LIGHT = 299_792_458.0
+from msleak.constants import SPEED_OF_LIGHT
 
 #: (RR, RL, LR, LL) = LINEAR_TO_CIRCULAR @ (XX, XY, YX, YY): kron(C, conj(C)) with C the
 #: feed change of basis of :data:`msleak.conventions.LINEAR_TO_CIRCULAR_FEEDS`, which maps

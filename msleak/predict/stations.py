@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from msleak.predict.kernels import C_LIGHT
+from msleak.constants import SPEED_OF_LIGHT
 
 __all__ = ["station_coordinates", "uvw_tolerance", "PHASE_TOLERANCE_RAD"]
 
@@ -65,7 +65,7 @@ def uvw_tolerance(freq_max_hz: float, lmn1: np.ndarray,
     reach = float(np.sqrt((lmn1 ** 2).sum(axis=1)).max()) if lmn1.size else 0.0
     if reach == 0.0:
         return math.inf
-    return phase_rad * C_LIGHT / (2.0 * math.pi * float(freq_max_hz) * reach)
+    return phase_rad * SPEED_OF_LIGHT / (2.0 * math.pi * float(freq_max_hz) * reach)
 
 
 def station_coordinates(tidx: np.ndarray, p: np.ndarray, q: np.ndarray, uvw: np.ndarray,

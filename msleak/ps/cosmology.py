@@ -19,17 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from msleak.constants import BOLTZMANN, FREQ_21CM, SPEED_OF_LIGHT
 from msleak.errors import InputError
 
-__all__ = ["F21_HZ", "BOLTZMANN", "Cosmo", "get_cosmology", "cosmo_at", "wedge_slope",
+__all__ = ["Cosmo", "get_cosmology", "cosmo_at", "wedge_slope",
            "jy2_to_mk2_mpc3"]
 
-#: rest frequency of the 21-cm line, Hz
-F21_HZ = 1420.405751768e6
-#: Boltzmann constant, J/K
-BOLTZMANN = 1.380649e-23
-_C_KM_S = 299792.458
-_C_M_S = 299792458.0
+
 
 
 def get_cosmology(name: str = "Planck18"):
@@ -60,7 +56,7 @@ class Cosmo:
 
     @property
     def y_mpc_per_hz(self) -> float:
-        return self.dh_mpc * (1 + self.z) ** 2 / (F21_HZ * self.efunc)
+        return self.dh_mpc * (1 + self.z) ** 2 / (FREQ_21CM * self.efunc)
 
     def k_perp(self, b_lambda):
         """k_perp (Mpc^-1) of baselines ``b_lambda`` (wavelengths)."""
@@ -78,17 +74,17 @@ class Cosmo:
 
 def cosmo_at(freq_hz: float, name: str = "Planck18") -> Cosmo:
     """Conversion factors for the 21-cm line observed at ``freq_hz``."""
-    if not (freq_hz > 0 and freq_hz < F21_HZ):
+    if not (freq_hz > 0 and freq_hz < FREQ_21CM):
         raise InputError(f"frequency {freq_hz / 1e6:.3f} MHz is not below the 21-cm rest "
-                         f"frequency {F21_HZ / 1e6:.3f} MHz: no 21-cm redshift")
+                         f"frequency {FREQ_21CM / 1e6:.3f} MHz: no 21-cm redshift")
     import astropy.units as u
 
     c = get_cosmology(name)
-    z = F21_HZ / freq_hz - 1
+    z = FREQ_21CM / freq_hz - 1
     h0 = c.H0.to_value(u.km / u.s / u.Mpc)
     return Cosmo(name=name, z=z, freq_hz=float(freq_hz),
                  dc_mpc=float(c.comoving_distance(z).to_value("Mpc")),
-                 efunc=float(c.efunc(z)), h0_km_s_mpc=float(h0), dh_mpc=_C_KM_S / h0)
+                 efunc=float(c.efunc(z)), h0_km_s_mpc=float(h0), dh_mpc=SPEED_OF_LIGHT / 1e3 / h0)
 
 
 def wedge_slope(cosmo: Cosmo, theta_deg: float) -> float:
@@ -110,7 +106,7 @@ def jy2_to_mk2_mpc3(cosmo: Cosmo, beam_area_sr: float, bandwidth_hz: float) -> f
     """
     if not beam_area_sr > 0:
         raise InputError(f"beam area must be positive (sr), got {beam_area_sr}")
-    lam = _C_M_S / cosmo.freq_hz
+    lam = SPEED_OF_LIGHT / cosmo.freq_hz
     jy_to_k_sr = 1e-26 * lam ** 2 / (2 * BOLTZMANN)
     return (bandwidth_hz * jy_to_k_sr ** 2 * cosmo.x_mpc_per_rad ** 2 * cosmo.y_mpc_per_hz
             / beam_area_sr * 1e6)

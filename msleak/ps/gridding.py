@@ -62,10 +62,11 @@ from typing import Literal
 
 import numpy as np
 
+from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 
 __all__ = [
-    "SPEED_OF_LIGHT", "Gridder", "UVGrid", "make_grid", "stokes_weights",
+    "Gridder", "UVGrid", "make_grid", "stokes_weights",
     "CellAccumulator", "WGridAccumulator", "make_accumulator",
     "wgrid_kernel_bruteforce", "GRIDDER_DESCRIPTIONS", "Taper", "TAPERS", "DEFAULT_TAPER",
     "MASK_FRACTION", "box_factor", "response_profile", "gridder_response", "image_taper",
@@ -74,7 +75,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-SPEED_OF_LIGHT = 299_792_458.0  # m/s
 Gridder = Literal["wgrid", "cell"]
 Taper = Literal["cos2", "hann"]
 TAPERS = ("cos2", "hann")

@@ -16,13 +16,12 @@ import math
 
 import numpy as np
 
+from msleak.constants import jy_per_kelvin
 from msleak.errors import InputError
-from msleak.ps.cosmology import BOLTZMANN
 
 __all__ = ["beam_solid_angle", "to_jy_per_pixel", "crop_centre", "image_to_uv",
            "IMAGE_UNITS"]
 
-_C = 299792458.0
 #: BUNIT values understood (upper case, spaces removed) -> canonical
 IMAGE_UNITS = {"JY/BEAM": "Jy/beam", "JY/PIXEL": "Jy/pixel", "JY/PIX": "Jy/pixel",
                "K": "K", "MK": "mK"}
@@ -53,7 +52,7 @@ def to_jy_per_pixel(cube: np.ndarray, unit: str, freq_hz: np.ndarray, pixel_sr: 
                              "--beam-fwhm or use an image with a restoring beam")
         return cube * (pixel_sr / beam_sr)
     scale = 1e-3 if canon == "mK" else 1.0
-    k_to_jy = 2 * BOLTZMANN * np.asarray(freq_hz) ** 2 / _C ** 2 * pixel_sr / 1e-26
+    k_to_jy = jy_per_kelvin(freq_hz, pixel_sr)
     return cube * scale * k_to_jy[:, None, None]
 
 

@@ -21,6 +21,7 @@ import xarray as xr
 from msleak.conventions import (STOKES, STOKES_CONVENTION, CorrelationLayout,
                                 correlation_layout, correlations_to_stokes)
 from msleak.errors import InputError
+from msleak.constants import SPEED_OF_LIGHT
 from msleak.ps.gridding import (DEFAULT_TAPER, GRIDDER_DESCRIPTIONS, SPEED_OF_LIGHT,
                                 make_accumulator, make_grid, response_attrs, stokes_weights)
 

@@ -31,6 +31,7 @@ from typing import Literal
 
 import numpy as np
 
+from msleak.constants import jy_per_kelvin
 from msleak.errors import InputError
 
 __all__ = [
@@ -57,9 +58,6 @@ Units = Literal["K", "Jy/pixel"]
 #: FITS STOKES axis codes (Greisen & Calabretta 2002).
 STOKES_CODES = {"I": 1, "Q": 2, "U": 3, "V": 4}
 
-K_B = 1.380649e-23          # J / K (exact, SI 2019)
-C_LIGHT = 299_792_458.0     # m / s (exact)
-JY = 1e-26                  # W m^-2 Hz^-1
 
 #: ``meta["POLFRAME"]`` of cubes whose Q, U are referred to the local North of each pixel
 POLFRAME = "LOCAL-NORTH"
@@ -211,14 +209,14 @@ def kelvin_to_jansky(temp_k: np.ndarray, freq_hz: np.ndarray, omega_sr: np.ndarr
     freq_hz : (nfreq,) Hz
     omega_sr : (ny, nx) or scalar pixel solid angle, sr
     """
-    factor = 2 * K_B * np.asarray(freq_hz, float) ** 2 / C_LIGHT**2 / JY
+    factor = jy_per_kelvin(freq_hz, 1.0)
     return np.asarray(temp_k) * factor[:, None, None] * np.asarray(omega_sr)
 
 
 def jansky_to_kelvin(flux_jy: np.ndarray, freq_hz: np.ndarray, omega_sr: np.ndarray
                      ) -> np.ndarray:
     """Inverse of :func:`kelvin_to_jansky`."""
-    factor = 2 * K_B * np.asarray(freq_hz, float) ** 2 / C_LIGHT**2 / JY
+    factor = jy_per_kelvin(freq_hz, 1.0)
     return np.asarray(flux_jy) / (factor[:, None, None] * np.asarray(omega_sr))
 
 

@@ -26,12 +26,12 @@ __all__ = ["RM_CONSTANT", "faraday_thickness", "faraday_depth_near_face",
 #: e^3 / (2 pi m_e^2 c^4) in rad m^-2 per (cm^-3 uG pc).
 RM_CONSTANT = 0.812
 
-C_LIGHT = 299_792_458.0
+from msleak.constants import SPEED_OF_LIGHT
 
 
 def wavelength_squared(freq_hz) -> np.ndarray:
     """lambda^2 = (c / nu)^2 in m^2."""
-    return (C_LIGHT / np.asarray(freq_hz, dtype=float)) ** 2
+    return (SPEED_OF_LIGHT / np.asarray(freq_hz, dtype=float)) ** 2
 
 
 def faraday_thickness(ne_cm3: np.ndarray, bpar_ug: np.ndarray, dl_pc: float) -> np.ndarray:

@@ -30,7 +30,7 @@ from msleak.sky.cube import SkyCube, convert_units, crop, pixel_directions, rece
 
 __all__ = ["PointSources", "lmn", "sources_from_cube", "read_sky", "DEFAULT_RTOL"]
 
-C_LIGHT = 299_792_458.0
+from msleak.constants import SPEED_OF_LIGHT
 
 #: Default relative tolerance for matching an MS channel to a sky-cube channel.
 DEFAULT_RTOL = 1e-6
@@ -130,7 +130,7 @@ class PointSources:
             if np.any(iquv[has, 0] == 0):
                 raise InputError("a RotationMeasure source needs Stokes I != 0 (DP3 defines "
                                  "its polarization as a fraction of I)")
-            lam0 = C_LIGHT / nu0[has]
+            lam0 = SPEED_OF_LIGHT / nu0[has]
             pf[has] = np.hypot(iquv[has, 1], iquv[has, 2]) / iquv[has, 0]
             pa[has] = np.mod(0.5 * np.arctan2(iquv[has, 2], iquv[has, 1])
                              - rm[has] * lam0**2, np.pi)
@@ -247,7 +247,7 @@ class PointSources:
         rm = self.rotation_measure
         if rm is not None and np.any(np.isfinite(rm)):
             has = np.isfinite(rm)
-            lam2 = (C_LIGHT / f) ** 2
+            lam2 = (SPEED_OF_LIGHT / f) ** 2
             chi = 2.0 * (self.pol_angle[has][:, None] + rm[has][:, None] * lam2[None, :])
             p = itot[has] * self.pol_fraction[has][:, None]
             out[has, :, 1] = p * np.cos(chi)

@@ -1,0 +1,29 @@
+"""Physical constants and unit conversions, in SI floats, taken from astropy.constants.
+
+Numerical kernels (numba included) use these plain floats; the public edges may accept
+astropy Quantities and convert with the functions here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from astropy import constants as _const
+from astropy import units as _u
+
+__all__ = ["SPEED_OF_LIGHT", "BOLTZMANN", "JANSKY", "FREQ_21CM", "jy_per_kelvin"]
+
+#: speed of light in vacuum [m s^-1] (exact)
+SPEED_OF_LIGHT: float = float(_const.c.to_value(_u.m / _u.s))
+#: Boltzmann constant [J K^-1] (exact)
+BOLTZMANN: float = float(_const.k_B.to_value(_u.J / _u.K))
+#: one jansky [W m^-2 Hz^-1]
+JANSKY: float = float((1 * _u.Jy).to_value(_u.W / _u.m**2 / _u.Hz))
+#: rest frequency of the 21-cm hyperfine line of neutral hydrogen [Hz]
+FREQ_21CM: float = 1420405751.768
+
+
+def jy_per_kelvin(freq_hz, solid_angle_sr: float) -> np.ndarray:
+    """Rayleigh-Jeans flux density [Jy] of a 1 K brightness temperature over
+    ``solid_angle_sr`` at ``freq_hz`` (``u.brightness_temperature``'s relation)."""
+    freq = np.asarray(freq_hz, dtype=float)
+    return 2.0 * BOLTZMANN * freq**2 / SPEED_OF_LIGHT**2 * solid_angle_sr / JANSKY
