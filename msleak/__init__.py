@@ -13,16 +13,17 @@ from msleak.errors import ConfigurationError, InputError, MsleakError
 
 __version__ = "0.1.0"
 
-#: public verb -> "module:function"
+#: public verb -> "module:function", or the stage package that is callable as the verb
+#: (msleak.predict and msleak.leakage: importing a subpackage makes it msleak's attribute)
 _VERBS = {
     "simulate": "msleak.telescope.simulate:simulate",
     "make_sky": "msleak.sky.make:make_sky",
     "beam_maps": "msleak.beam.maps:beam_maps",
-    "predict": "msleak.predict.engine:predict",
+    "predict": "msleak.predict",
     "grid": "msleak.ps.grid:grid",
     "transform": "msleak.ps.transform:transform",
     "power_spectrum": "msleak.ps.power:power_spectrum",
-    "leakage": "msleak.leakage.analysis:leakage",
+    "leakage": "msleak.leakage",
 }
 
 __all__ = ["__version__", "MsleakError", "InputError", "ConfigurationError", *_VERBS]
@@ -30,8 +31,9 @@ __all__ = ["__version__", "MsleakError", "InputError", "ConfigurationError", *_V
 
 def __getattr__(name: str):
     if name in _VERBS:
-        module, func = _VERBS[name].split(":")
-        return getattr(importlib.import_module(module), func)
+        module, _, func = _VERBS[name].partition(":")
+        found = importlib.import_module(module)
+        return getattr(found, func) if func else found
     raise AttributeError(f"module 'msleak' has no attribute {name!r}")
 
 

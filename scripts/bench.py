@@ -97,13 +97,54 @@ def compare_cubes(a: Path, b: Path) -> float:
     return float(np.abs(va - vb).max() / np.abs(vb).max())
 
 
+def _dp3_per_slot(results: dict) -> float | None:
+    """DP3's seconds per 120 s slot of the 48-station MS with 2500 sources, from this run."""
+    peer = (results["peers"].get("predict_vs_dp3") or {}).get("result") or {}
+    return (peer.get("dp3") or {}).get("per_slot_s")
+
+
+def bench_many_skies(stage, msleak: list, ms: Path, out: Path, results: dict) -> None:
+    """predict of 1, 3 and 15 skies in one pass on the NCP MS, and DP3's time for them."""
+    import casacore.tables as pt
+    import numpy as np
+    from bench_multisky import dp3_estimate, make_skies, predict_many
+
+    skies = make_skies(stage, msleak, out / "skies")
+    runs = predict_many(stage, msleak, ms, skies)
+    with pt.table(str(ms), ack=False) as t:
+        rows = t.nrows()
+        per_slot = int(np.unique(t.getcol("TIME"), return_counts=True)[1].max())
+    dp3 = _dp3_per_slot(results)
+    for n, r in runs.items():
+        if dp3:
+            r["dp3_estimate_s"] = round(dp3_estimate(dp3, rows, per_slot,
+                                                     [s for _, s in skies[:n]]), 1)
+            r["speedup_vs_dp3"] = round(r["dp3_estimate_s"] / r["wall_s"], 1)
+        results["multisky"][f"predict_{n}_skies"] = r
+
+
+def bench_study(stage, msleak: list, out: Path, results: dict, quick: bool) -> None:
+    """The whole study with one and with five sky realisations, and DP3's predict time."""
+    from bench_multisky import FIELDS_OF_VIEW, dp3_estimate, study, study_rows
+
+    dp3 = _dp3_per_slot(results)
+    for seeds in (1, 5):
+        r = study(stage, msleak, out, seeds, quick)
+        if dp3 and not r["exit"]:
+            sources = [npix * npix for _, npix in FIELDS_OF_VIEW] * seeds
+            r["dp3_predict_estimate_s"] = round(sum(
+                dp3_estimate(dp3, rows, per_slot, sources)
+                for rows, per_slot in study_rows(out / f"paper_seeds{seeds}").values()), 1)
+        results["study"][f"paper_seeds{seeds}"] = r
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="small inputs (a smoke run, minutes)")
     ap.add_argument("--only", default="", help="comma-separated stages or groups to run "
                     "(simulate, sky, beam, predict, grid, transform, ps, leakage, peers, "
                     "beam_peer, predict_peer, ps_peer, schedulers, predict_schedulers, "
-                    "grid_schedulers, scaling)")
+                    "grid_schedulers, scaling, multisky, study)")
     ap.add_argument("--outdir", default=str(ROOT / "bench-output"))
     ap.add_argument("--doc", default=str(ROOT / "docs" / "benchmarks.md"),
                     help="Markdown report ('' for none)")
@@ -115,11 +156,12 @@ def main() -> int:
     results = {"machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
                            "platform": platform.platform(), "load_avg_start": os.getloadavg()},
                "date": time.strftime("%Y-%m-%d %H:%M"), "quick": args.quick,
-               "stages": {}, "peers": {}, "schedulers": {}, "notes": []}
+               "stages": {}, "peers": {}, "schedulers": {}, "multisky": {}, "study": {},
+               "notes": []}
     previous = out / "bench.json"
     if only and previous.exists():  # a partial rerun updates the last full results
         old = json.loads(previous.read_text())
-        for group in ("stages", "peers", "schedulers"):
+        for group in ("stages", "peers", "schedulers", "multisky", "study"):
             results[group] = old.get(group, {})
         results["notes"] = old.get("notes", [])
         results["notes"].append(
@@ -154,19 +196,21 @@ def main() -> int:
         stage("sky", [*msleak, "sky", sky, "--seed", "1", "--overwrite"])
     # 2. the chain, default options (scheduler threads on all cores)
     if want("beam"):
-        stage("beam", [*msleak, "beam", ms, "-o", out / "beam.png"])
+        stage("beam", [*msleak, "beam", ms, "-o", out / "beam.png", "--overwrite"])
     if want("predict"):
         stage("predict", [*msleak, "predict", ms, "--sky", sky, "--no-progress", "--restart"])
     if want("grid"):
-        stage("grid", [*msleak, "grid", ms, "--column", "MODEL_DATA", "-o", out / "grid.h5"])
+        stage("grid", [*msleak, "grid", ms, "--column", "MODEL_DATA", "-o", out / "grid.h5",
+                       "--overwrite"])
     if want("transform"):
-        stage("transform", [*msleak, "transform", out / "grid.h5", "-o", out / "delay.h5"])
+        stage("transform", [*msleak, "transform", out / "grid.h5", "-o", out / "delay.h5",
+                            "--overwrite"])
     if want("ps"):
         stage("ps", [*msleak, "ps", out / "delay.h5", "-o", out / "ps.h5",
-                     "--plot", out / "ps.png"])
+                     "--plot", out / "ps.png", "--overwrite"])
     if want("leakage"):
         stage("leakage", [*msleak, "leakage", out / "ps.h5", "-o", out / "leakage",
-                          "--field-name", "NCP"])
+                          "--field-name", "NCP", "--overwrite"])
     # 3. schedulers: predict of a 1 h MS and grid of the paper MS, sync / threads / processes
     if want("schedulers", "predict_schedulers"):
         small = out / "ncp_1h.ms"
@@ -184,7 +228,8 @@ def main() -> int:
     if want("schedulers", "grid_schedulers"):
         for sched in ("sync", "threads", "processes"):
             stage(f"grid_{sched}", [*msleak, "grid", ms, "--column", "MODEL_DATA", "-o",
-                                    out / f"grid_{sched}.h5", "--scheduler", sched],
+                                    out / f"grid_{sched}.h5", "--scheduler", sched,
+                                    "--overwrite"],
                   "schedulers")
         for sched in ("threads", "processes"):
             if (out / f"grid_{sched}.h5").exists() and (out / "grid_sync.h5").exists():
@@ -196,7 +241,7 @@ def main() -> int:
         r = stage("beam_vs_everybeam", [sys.executable, SCRIPTS / "bench_beam.py",
                                         "--outdir", out, *quick], "peers")
         r["result"] = last_json(r["stdout"])
-    if want("peers", "predict_peer"):
+    if want("peers", "predict_peer", "multisky", "study"):
         r = stage("predict_vs_dp3", [sys.executable, SCRIPTS / "bench_predict.py",
                                      "--outdir", out, *quick], "peers")
         r["result"] = last_json(r["stdout"])
@@ -211,6 +256,10 @@ def main() -> int:
         r = stage("scaling", [sys.executable, SCRIPTS / "bench_scaling.py", "--outdir", out,
                               *quick], "peers")
         r["result"] = last_json(r["stdout"])
+    if want("multisky") and not args.quick:
+        bench_many_skies(stage, msleak, ms, out, results)
+    if want("study"):
+        bench_study(stage, msleak, out, results, args.quick)
     if not only:
         results["machine"]["load_avg_end"] = os.getloadavg()
     if not args.keep and not only:
@@ -221,7 +270,8 @@ def main() -> int:
 
         write_markdown(results, Path(args.doc))
     summary = {k: {"wall_s": v["wall_s"], "peak_rss_mib": v["peak_rss_mib"], "exit": v["exit"]}
-               for group in ("stages", "schedulers", "peers") for k, v in results[group].items()}
+               for group in ("stages", "schedulers", "peers", "multisky", "study")
+               for k, v in results[group].items() if "wall_s" in v}
     print(json.dumps(summary, indent=1))
     failed = [k for k, v in summary.items() if v["exit"]]
     if failed:

@@ -62,12 +62,12 @@ def main(argv=None) -> int:
     from msleak.beam import load_beam
     from msleak.beam.everybeam_direct import EveryBeamDirect
     from msleak.io.ms import read_spectral_windows, read_times
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
     fovs = {2500: 15.0, 784: 9.0, 256: 4.0}
     with tempfile.TemporaryDirectory(prefix="msleak-bench-beam-") as tmp:
-        ms = simulate_ms(Path(tmp) / "bench.ms", field="3c196", duration_h=2 * 120 / 3600,
-                         interval_s=120.0, nchan=args.channels, stations=args.stations)
+        ms = simulate(Path(tmp) / "bench.ms", field="3c196", duration=2 * 120 / 3600,
+                      interval=120.0, nchan=args.channels, stations=args.stations)
         freq = read_spectral_windows(ms)[0].freq
         t = read_times(ms)[:1]
         t0 = time.perf_counter()

@@ -42,7 +42,7 @@ import json, resource, sys, time
 t0 = time.perf_counter()
 from msleak.predict import predict
 r = predict(sys.argv[1], sys.argv[2], column=sys.argv[3], beam=sys.argv[4],
-            double=sys.argv[5] == "1", progress=False)
+            double=sys.argv[5] == "1", progress=False, scheduler="sync")
 print(json.dumps({"wall": time.perf_counter() - t0, "seconds": r.seconds,
                   "timings": r.timings, "rows": r.rows_written, "slots": r.n_slots,
                   "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
@@ -105,11 +105,11 @@ def _matmul_rate(nst: int, nsrc: int, nchan: int, dtype) -> float:
 
 
 def _simulate(path: Path, hours: float, args) -> None:
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
-    simulate_ms(path, field=args.field, duration_h=hours, interval_s=args.interval, nchan=args.nchan,
-                freq_min_hz=150e6, chan_width_hz=195312.5, stations=args.stations,
-                overwrite=True)
+    simulate(path, field=args.field, duration=hours, interval=args.interval, nchan=args.nchan,
+             freq_min=150e6, chan_width=195312.5, stations=args.stations,
+             overwrite=True)
 
 
 def main(argv=None) -> int:
@@ -139,7 +139,8 @@ def main(argv=None) -> int:
 
     import casacore.tables as pt
 
-    from msleak.predict.dp3ref import dp3_available, dp3_environment
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from dp3ref import dp3_available, dp3_environment
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="msleak_bench_predict_"))
     work.mkdir(parents=True, exist_ok=True)

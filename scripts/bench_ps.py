@@ -117,10 +117,12 @@ def bench_ms(work: Path, quick: bool) -> dict:
         result["rows"] = t.nrows()
         result["shape"] = list(t.getcell("DATA", 0).shape)
     stages = {
-        "grid": msleak_cmd("grid", ms, "-o", work / "grid.h5", "--threads", "2"),
-        "transform": msleak_cmd("transform", work / "grid.h5", "-o", work / "delay.h5"),
+        "grid": msleak_cmd("grid", ms, "-o", work / "grid.h5", "--threads", "2",
+                           "--overwrite"),
+        "transform": msleak_cmd("transform", work / "grid.h5", "-o", work / "delay.h5",
+                                "--overwrite"),
         "ps": msleak_cmd("ps", work / "delay.h5", "-o", work / "ps.h5",
-                         "--plot", work / "ps.png"),
+                         "--plot", work / "ps.png", "--overwrite"),
     }
     for name, cmd in stages.items():
         result[name] = run_stage(cmd)
@@ -162,12 +164,12 @@ def bench_image(work: Path, uv=(30.0, 180.0)) -> dict:
     out: dict = {}
     t0 = time.perf_counter()
     run_stage(msleak_cmd("grid", "--image", cube_path, "--uv-range", f"{uv[0]},{uv[1]}",
-                         "-o", work / "img_grid.h5"))
+                         "-o", work / "img_grid.h5", "--overwrite"))
     run_stage(msleak_cmd("transform", work / "img_grid.h5", "-o", work / "img_delay.h5",
-                         "--window", "blackman-harris", "--partial", "zero"))
+                         "--window", "blackman-harris", "--partial", "zero", "--overwrite"))
     cell = float(xr.open_dataset(work / "img_grid.h5", engine="h5netcdf").attrs["cell_lambda"])
     run_stage(msleak_cmd("ps", work / "img_delay.h5", "-o", work / "img_ps.h5",
-                         "--bin-width", cell))
+                         "--bin-width", cell, "--overwrite"))
     out["msleak_s"] = round(time.perf_counter() - t0, 2)
     ours = xr.open_dataset(work / "img_ps.h5", engine="h5netcdf").load()
     try:

@@ -112,7 +112,7 @@ def _scaling_rows(r: dict) -> list:
              f"{b['times']} slots of 120 s, {b['channels']} channels; one factor varied at a "
              f"time; scheduler {r['scheduler']}; best of 2 runs. predict: the chunk loop "
              "(beam, kernel, UVW read, write; sky and beam set-up excluded); grid: the whole "
-             "grid_ms call.", "",
+             "msleak.grid call.", "",
              "| step | varied | N | time (s) | log-log slope |", "|---|---|---|---|---|"]
     for what in ("predict", "grid"):
         for factor, x in r[what].items():
@@ -128,6 +128,39 @@ def _scaling_rows(r: dict) -> list:
               "box, which do not grow with rows: it is linear in channels and nearly flat in "
               "stations and times until the visibilities dominate (paper MS: 440 k rows in "
               "about 16 s)."]
+    return lines
+
+
+def _multisky_rows(runs: dict) -> list:
+    lines = ["Skies: 5 seeds x the study's 3 fields of view (15, 9 and 4 deg: 2500, 784 and 256 "
+             "sources), each into its own column, on the paper's NCP MS; `msleak predict` of n "
+             "skies evaluates the beam once per chunk on the union of their directions. DP3: "
+             "one predict + applybeam run per sky, its time estimated from its time per slot "
+             "for 2500 sources measured in this run (scripts/bench_multisky.py says how).", "",
+             "| skies | sources | msleak wall (s) | x one sky | peak memory (MiB) | "
+             "DP3 estimate (s) | msleak / DP3 speed-up |", "|---|---|---|---|---|---|---|"]
+    for r in runs.values():
+        if "n_skies" not in r:
+            continue
+        lines.append(f"| {r['n_skies']} | {r['n_sources']} | {r['wall_s']:.1f} | "
+                     f"{r['ratio_to_one_sky']:.2f} | {_f(r['peak_rss_mib'], '.0f')} | "
+                     f"{_f(r.get('dp3_estimate_s'), '.0f')} | "
+                     f"{_f(r.get('speedup_vs_dp3'), '.1f')} |")
+    return lines
+
+
+def _study_rows(runs: dict) -> list:
+    lines = ["`msleak paper OUTDIR --seeds N --overwrite`: both fields, 3 fields of view, N sky "
+             "realisations, every step rerun (simulate, sky, beam maps, predict, grid, "
+             "transform, ps, leakage, figures, report). DP3 column: the estimated time of "
+             "DP3 predict + applybeam for the same predictions alone.", "",
+             "| seeds | wall (s) | wall (min) | peak memory (MiB) | DP3 predict estimate (s) |",
+             "|---|---|---|---|---|"]
+    for r in runs.values():
+        lines.append(f"| {r.get('seeds', '?')} | {r['wall_s']:.0f} | {r['wall_s'] / 60:.1f} | "
+                     f"{_f(r['peak_rss_mib'], '.0f')} | "
+                     f"{_f(r.get('dp3_predict_estimate_s'), '.0f')} |"
+                     + (f" FAILED (exit {r['exit']})" if r["exit"] else ""))
     return lines
 
 
@@ -179,6 +212,11 @@ def write_markdown(results: dict, path: Path) -> None:
                   "difference is the largest absolute difference over the peak (predict: "
                   "complex64 visibilities; grid: the gridded cube).", "",
                   *_scheduler_rows(results["schedulers"])]
+    if results.get("multisky"):
+        lines += ["", "## Many skies in one predict", "", *_multisky_rows(results["multisky"])]
+    if results.get("study"):
+        lines += ["", "## The whole study, one and five sky realisations", "",
+                  *_study_rows(results["study"])]
     sc = peers.get("scaling", {}).get("result")
     if sc:
         lines += ["", "## Scaling of predict and grid", "", *_scaling_rows(sc)]

@@ -9,7 +9,7 @@ numba cache):
 
 * predict: the chunk loop of :func:`msleak.predict.predict` (``seconds - setup``: UVW
   read, beam, kernel, write; the sky and beam-model set-up excluded), ``--scheduler``;
-* grid: the whole :func:`msleak.ps.uvcube.grid_ms` of MODEL_DATA (30-180 wavelengths).
+* grid: the whole :func:`msleak.grid` of MODEL_DATA (30-180 wavelengths).
 
 The log-log slope d log(time) / d log(N) is fitted per factor (1 = linear). Sources do not
 change the cost of gridding, so grid has no sources row. Prints a table, then the results
@@ -39,14 +39,14 @@ def _sky(path: Path, nside: int) -> int:
 
 
 def _ms(work: Path, stations: str, slots: int, nchan: int) -> Path:
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
     name = f"s{stations.replace('*', 'x').replace('[', '').replace(']', '')}_t{slots}_c{nchan}.ms"
     path = work / name
     if not (path / "table.dat").exists():
-        simulate_ms(path, field="ncp", duration_h=slots * 120 / 3600, interval_s=120.0,
-                    nchan=nchan, freq_min_hz=150e6, chan_width_hz=195312.5, stations=stations,
-                    overwrite=True)
+        simulate(path, field="ncp", duration=slots * 120 / 3600, interval=120.0,
+                 nchan=nchan, freq_min=150e6, chan_width=195312.5, stations=stations,
+                 overwrite=True)
     return path
 
 
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(sys.prefix) / "numba-cache"))
     from msleak.predict import predict
-    from msleak.ps.uvcube import grid_ms
+    from msleak import grid
 
     outdir = Path(args.outdir or "bench-output")
     work = outdir / "scaling"
@@ -91,8 +91,8 @@ def main(argv=None) -> int:
 
     def time_grid(ms):
         t0 = time.perf_counter()
-        grid_ms(ms, column="MODEL_DATA", uv_range=(30.0, 180.0), nthreads=None,
-                scheduler=args.scheduler)
+        grid(ms, column="MODEL_DATA", uv_range=(30.0, 180.0), threads=1,
+             scheduler=args.scheduler)
         return time.perf_counter() - t0
 
     ms0, sky0 = setup({**base, "stations": min(STATIONS), "times": 4})

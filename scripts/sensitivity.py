@@ -288,8 +288,7 @@ def configurations(quick: bool) -> list[Config]:
         b = dict(red)
         out += [Config("grid", "cell 8 lambda", f, b, grid={"cell": 8}),
                 Config("grid", "cell 24 lambda", f, b, grid={"cell": 24}),
-                Config("grid", "gridder cell", f, b, grid={"gridder": "cell"}),
-                Config("grid", "taper hann", f, b, grid={"taper": "hann"})]
+                Config("grid", "gridder cell", f, b, grid={"gridder": "cell"})]
     for f in FIELDS:
         out += [Config("stations", "9 fields (HBA0 of the 9 stations)", f, one_field),
                 Config("integration", "120 s, 20 min", f,

@@ -10,15 +10,15 @@ import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-SMALL_MS_PARAMS = dict(field="3c196", duration_h=4 * 120 / 3600, interval_s=120.0,
-                       freq_min_hz=150e6, nchan=4, chan_width_hz=195312.5,
+SMALL_MS_PARAMS = dict(field="3c196", duration=4 * 120 / 3600, interval=120.0,
+                       freq_min=150e6, nchan=4, chan_width=195312.5,
                        stations="CS00[1-3]HBA*")
 
 
 def _build(path: Path, **params) -> Path:
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
-    return simulate_ms(path, **params)
+    return simulate(path, **params)
 
 
 @pytest.fixture(scope="session")
@@ -37,7 +37,7 @@ def small_lofar_ms(_small_lofar_ms_master, tmp_path) -> Path:
 
 @pytest.fixture
 def make_ms(tmp_path):
-    """Build an MS with ``simulate_ms`` keyword arguments: ``make_ms(name="x.ms", **params)``."""
+    """Build an MS with ``simulate`` keyword arguments: ``make_ms(name="x.ms", **params)``."""
 
     def factory(name: str = "test.ms", **params) -> Path:
         merged = {**SMALL_MS_PARAMS, **params}

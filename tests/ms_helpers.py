@@ -69,3 +69,15 @@ def split_qu_cube(cube, prefix: str = "") -> tuple[str, str]:
         names.append(f"{prefix}{stokes}.fits")
         fits.PrimaryHDU(data[k], single).writeto(names[-1])
     return names[0], names[1]
+
+
+def copy_spectral_window(ms, shift_hz: float) -> None:
+    """Append SPECTRAL_WINDOW row 1: a copy of row 0 with every frequency shifted by
+    ``shift_hz`` (the DATA_DESCRIPTION rows are the caller's)."""
+    with table(f"{ms}/SPECTRAL_WINDOW", readonly=False) as t:
+        t.addrows(1)
+        for col in t.colnames():
+            if t.iscelldefined(col, 0):
+                t.putcell(col, 1, t.getcell(col, 0))
+        t.putcell("CHAN_FREQ", 1, t.getcell("CHAN_FREQ", 0) + shift_hz)
+        t.putcell("REF_FREQUENCY", 1, t.getcell("REF_FREQUENCY", 0) + shift_hz)

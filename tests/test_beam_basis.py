@@ -64,8 +64,8 @@ def test_ncp_polarized_beam_has_no_null_in_the_main_lobe(make_ms, tmp_path):
     about the pole), so the test tells the two apart."""
     import xarray as xr
 
-    ms = make_ms("ncp.ms", field="ncp", stations="CS00[1-2]HBA*", duration_h=12.0,
-                 interval_s=3600.0, nchan=2)
+    ms = make_ms("ncp.ms", field="ncp", stations="CS00[1-2]HBA*", duration=12.0,
+                 interval=3600.0, nchan=2)
     out = {}
     for basis in ("tangent", "local"):
         r = CliRunner().invoke(cli, ["beam", str(ms), "-o", str(tmp_path / f"{basis}.png"),

@@ -19,13 +19,13 @@ pytest.importorskip("everybeam")
 @pytest.fixture(scope="module")
 def lofar_mss(tmp_path_factory):
     """3C196 and NCP LOFAR MSs (CS001-CS003 HBA0/HBA1, 2 h, 4 channels), built once."""
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
     root = tmp_path_factory.mktemp("beam_ms")
-    common = dict(duration_h=2.0, interval_s=3600.0, freq_min_hz=150e6, nchan=4,
-                  chan_width_hz=195312.5, stations="CS00[1-3]HBA*")
-    return {"3c196": simulate_ms(root / "3c196.ms", field="3c196", **common),
-            "ncp": simulate_ms(root / "ncp.ms", field="ncp", **common)}
+    common = dict(duration=2.0, interval=3600.0, freq_min=150e6, nchan=4,
+                  chan_width=195312.5, stations="CS00[1-3]HBA*")
+    return {"3c196": simulate(root / "3c196.ms", field="3c196", **common),
+            "ncp": simulate(root / "ncp.ms", field="ncp", **common)}
 
 
 @pytest.fixture(scope="module")

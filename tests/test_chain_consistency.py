@@ -9,13 +9,13 @@ import pytest
 
 from msleak.io.skymodel import write_skymodel
 from msleak.predict import predict
-from msleak.ps.uvcube import grid_ms
+import msleak
 from msleak.sky import PointSources
 
 
 @pytest.mark.parametrize("offset_deg", [(0.8, 0.3), (-0.5, -0.9)])
 def test_predicted_source_grids_at_its_own_position(make_ms, tmp_path, offset_deg):
-    ms = make_ms("chain.ms", stations="CS00[1-7]HBA*", duration_h=4.0, interval_s=900.0,
+    ms = make_ms("chain.ms", stations="CS00[1-7]HBA*", duration=4.0, interval=900.0,
                  nchan=2)
     ra0, dec0 = np.radians(123.4), np.radians(48.2)
     # a source offset by (dl, dm) in the tangent plane: l East, m North
@@ -27,7 +27,7 @@ def test_predicted_source_grids_at_its_own_position(make_ms, tmp_path, offset_de
     np.testing.assert_allclose([l0[0], m0[0]], [dl, dm], atol=1e-12)
     sky = write_skymodel(tmp_path / "one.skymodel", src)
     predict(ms, sky, beam="none", column="MODEL_DATA", progress=False)
-    cube = grid_ms(ms, column="MODEL_DATA", cell=16.0, uv_range=(30.0, 180.0))
+    cube = msleak.grid(ms, column="MODEL_DATA", cell=16.0, uv_range=(30.0, 180.0))
     vis = cube["vis"].sel(stokes="I").isel(freq=0).values
     weight = cube["weight"].isel(freq=0).values
     u = cube["u"].values[None, :]

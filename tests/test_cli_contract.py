@@ -69,7 +69,7 @@ def test_paper_shows_each_step_by_default_and_not_with_quiet(tmp_path):
             "--nchan", "8"]
     default = msleak(*args)
     assert default.returncode == 2
-    steps = [ln for ln in default.stderr.splitlines() if " msleak.steps INFO: run  " in ln]
+    steps = [ln for ln in default.stderr.splitlines() if " msleak.study.steps INFO: run  " in ln]
     assert [ln.split("run  ")[1].split(":")[0] for ln in steps] == [
         "sky", "sky-crop-9deg", "sky-crop-4deg", "simulate-3c196"]
     assert "msleak simulate " in steps[-1] and "--stations 'NOPE*'" in steps[-1]

@@ -27,7 +27,7 @@ def test_unexpected_failure_is_one_line_exit_1(monkeypatch, tmp_path):
     def broken(*args, **kwargs):
         raise ZeroDivisionError("simulated bug")
 
-    monkeypatch.setattr(simulate_module, "simulate_ms", broken)
+    monkeypatch.setattr(simulate_module, "simulate", broken)
     result = CliRunner().invoke(cli, ["simulate", str(tmp_path / "x.ms")])
     assert result.exit_code == 1
     assert "unexpected failure: ZeroDivisionError: simulated bug" in result.output
@@ -40,7 +40,7 @@ def test_keyboard_interrupt_says_what_to_rerun(monkeypatch, tmp_path):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(simulate_module, "simulate_ms", interrupted)
+    monkeypatch.setattr(simulate_module, "simulate", interrupted)
     result = CliRunner().invoke(cli, ["simulate", str(tmp_path / "x.ms")])
     assert result.exit_code == 130
     assert "rerun the same command" in result.output and "--overwrite" in result.output

@@ -167,9 +167,13 @@ def _cases():
     def _(ms, tmp):
         return ["grid", ms, "--field", "4", "-o", tmp / "g.h5"]
 
-    @add("grid-no-such-ddid", "DATA_DESC_ID 2")
+    @add("grid-no-such-spw", "no spectral window 2")
     def _(ms, tmp):
-        return ["grid", ms, "--ddid", "2", "-o", tmp / "g.h5"]
+        return ["grid", ms, "--spw", "2", "-o", tmp / "g.h5"]
+
+    @add("grid-no-such-field-name", "no field named 'NOPE'")
+    def _(ms, tmp):
+        return ["grid", ms, "--field", "NOPE", "-o", tmp / "g.h5"]
 
     # ------------------------------------------------------------ flags and uv range
     @add("grid-all-flagged", "flagged")
@@ -332,16 +336,17 @@ def test_multiple_fields_without_selection(small_lofar_ms, tmp_path):
 def products(tmp_path_factory, _small_lofar_ms_master):
     """A uv cube, delay cube and PS of the session MS (read only)."""
     from msleak.io.products import open_product, save_product
-    from msleak.ps.spectra import power_spectrum, transform_uvcube
-    from msleak.ps.uvcube import grid_ms
+    from msleak.ps.power import power_spectrum
+    from msleak.ps.transform import transform
+    import msleak
 
     d = tmp_path_factory.mktemp("products")
-    uv = grid_ms(_small_lofar_ms_master, uv_range=(1.0, 200.0), gridder="cell")
-    save_product(uv, d / "uv.h5", "uvcube")
-    dl = transform_uvcube(open_product(d / "uv.h5", "uvcube"))
-    save_product(dl, d / "delay.h5", "delay")
+    uv = msleak.grid(_small_lofar_ms_master, uv_range=(1.0, 200.0), gridder="cell")
+    save_product(uv, d / "uv.h5", "uvcube", overwrite=False)
+    dl = transform(open_product(d / "uv.h5", "uvcube"))
+    save_product(dl, d / "delay.h5", "delay", overwrite=False)
     ps = power_spectrum(open_product(d / "delay.h5", "delay"))
-    save_product(ps, d / "ps.h5", "ps")
+    save_product(ps, d / "ps.h5", "ps", overwrite=False)
     return d
 
 

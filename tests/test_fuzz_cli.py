@@ -53,14 +53,15 @@ OPTIONS = {
                 "--workers": INTS},
     "grid": {"--column": WORDS, "--cell": FLOATS, "--uv-range": PAIRS,
              "--gridder": ["wgrid", "cell", "fft"], "--split": ["even-odd", "first-second", "x"],
-             "--field": INTS, "--ddid": INTS, "--beam-area": FLOATS, "--chunk-rows": INTS,
-             "--epsilon": FLOATS, "--threads": INTS, "--taper": ["hann", "none", "x"]},
+             "--field": WORDS + ["0"], "--spw": INTS, "--beam-area": FLOATS,
+             "--chunk-rows": INTS, "--epsilon": FLOATS, "--threads": INTS},
     "transform": {"--window": ["blackman-harris", "hann", "none", "boxcar", ""],
                   "--partial": ["drop", "zero", "x"]},
     "ps": {"--cosmology": WORDS + ["WMAP9"], "--bins": INTS, "--bin-width": FLOATS,
            "--log-bins": "flag", "--sph-bins": INTS, "--kperp-1d": PAIRS,
            "--primary-theta": FLOATS, "--beam-area": FLOATS, "--cross": "flag",
-           "--stokes": WORDS},
+           "--stokes": WORDS, "--h0": FLOATS, "--om0": FLOATS, "--ob0": FLOATS,
+           "--tcmb0": FLOATS, "--little-h": "flag"},
     "leakage": {"--labels": WORDS + ["a,a", "a,b"], "--stats-from": ["voxels", "bins", "x"],
                 "--negative": ["mask", "clip", "x"], "--bins": INTS, "--hist-quantile": FLOATS,
                 "--k-par-range": PAIRS, "--k-perp-range": PAIRS, "--expected-model":
@@ -80,8 +81,9 @@ def world(tmp_path_factory, _small_lofar_ms_master):
     """Valid inputs of every kind, made once: MS, sky cube, sky model, products."""
     from msleak.io.fits import write_cube
     from msleak.io.products import open_product, save_product
-    from msleak.ps.spectra import power_spectrum, transform_uvcube
-    from msleak.ps.uvcube import grid_ms
+    from msleak.ps.power import power_spectrum
+    from msleak.ps.transform import transform
+    import msleak
     from msleak.sky.foreground import generate_foreground_cube
 
     d = tmp_path_factory.mktemp("fuzz")
@@ -94,10 +96,10 @@ def world(tmp_path_factory, _small_lofar_ms_master):
     write_cube(cube, d / "sky.fits", overwrite=True)
     (d / "sky.skymodel").write_text(f"format = Name, Type, Ra, Dec, I, Q, U, V\n"
                                     f"a, POINT, {ra!r}, {dec!r}, 1, 0.2, 0.1, 0\n")
-    uv = grid_ms(_small_lofar_ms_master, uv_range=(1.0, 200.0), gridder="cell")
-    save_product(uv, d / "uv.h5", "uvcube")
-    save_product(transform_uvcube(open_product(d / "uv.h5")), d / "delay.h5", "delay")
-    save_product(power_spectrum(open_product(d / "delay.h5")), d / "ps.h5", "ps")
+    uv = msleak.grid(_small_lofar_ms_master, uv_range=(1.0, 200.0), gridder="cell")
+    save_product(uv, d / "uv.h5", "uvcube", overwrite=False)
+    save_product(transform(open_product(d / "uv.h5")), d / "delay.h5", "delay", overwrite=False)
+    save_product(power_spectrum(open_product(d / "delay.h5")), d / "ps.h5", "ps", overwrite=False)
     return dict(dir=d, ms=_small_lofar_ms_master)
 
 

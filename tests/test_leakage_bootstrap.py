@@ -1,5 +1,7 @@
 """Errors of correlated voxels: block bootstrap, KS goodness of fit, effective cell counts."""
 
+import csv
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from msleak.leakage.bootstrap import (_weighted_order_median, _weighted_pareto_m
                                      bootstrap_errors, cell_groups)
 from msleak.leakage.expected import (correlation_factors, sample_error,
                                      window_correlation_length)
+from msleak.leakage.outputs import write_stats_csv, write_stats_md
 from msleak.leakage.stats import pareto_ks
 
 from test_leakage_helpers import gaussian_voxels, make_ps_dataset
@@ -156,9 +159,6 @@ def test_ks_uniform_for_the_model_and_tiny_for_a_mixture():
 
 
 def test_stats_table_has_the_new_columns(tmp_path):
-    from msleak.leakage.report import write_stats_csv, write_stats_md
-    import csv
-
     rng = np.random.default_rng(8)
     ds = make_ps_dataset(gaussian_voxels((20, 60), 0.05, rng), gaussian_voxels((20, 60), 1, rng))
     res = analyse([ds], ["a"], ["a.h5"])

@@ -147,7 +147,8 @@ def test_all_polarized_power_zero_exit_2(tmp_path):
     (["--k-par-range", "0.5,0.1"], "MIN < MAX"),
     (["--k-perp-range", "x,1"], "comma-separated list of numbers"),
     (["--bins", "1"], "'--bins'"),
-    (["--expected-model", "median", "--expected", "OBS,OBS,OBS"], "give 2 observed PS"),
+    (["--expected-model", "median", "--expected", "OBS", "--expected", "OBS", "--expected",
+      "OBS"], "give 2 observed PS"),
 ])
 def test_usage_errors_exit_2(products, tmp_path, extra, msg):
     extra = [e.replace("OBS", str(products["obs"])) for e in extra]
@@ -164,8 +165,8 @@ def test_bad_files_exit_2(products, tmp_path):
     assert run(products["9deg"], "-o", out, "--no-figures").exit_code == 0
     r = run(out / "leakage.h5", "-o", tmp_path / "o2")
     assert r.exit_code == 2 and "expected ps" in r.stderr
-    r = run(products["9deg"], "-o", tmp_path / "o3", "--expected", f"{products['obs']},"
-            f"{products['obs']}", "--correct", str(products["obs"]), "--no-figures")
+    r = run(products["9deg"], "-o", tmp_path / "o3", "--expected", products["obs"],
+            "--expected", products["obs"], "--correct", products["obs"], "--no-figures")
     assert r.exit_code == 2 and "pairs one to one" in r.stderr
 
 

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from msleak.errors import InputError
-from msleak.leakage import (analyse, bias_correct, correct, expected_leakage_error,
-                            expected_leakage_power, predict, spherical_from_bins)
+from msleak.leakage import (analyse, bias_correct, corrected_power, expected_leakage,
+                            expected_leakage_error, expected_leakage_power,
+                            spherical_from_bins)
 from msleak.leakage.expected import edges_from_centres, leakage_model_error
 
 from test_leakage_helpers import (cylindrical, gaussian_voxels, geometry, make_ps_dataset,
@@ -43,13 +44,13 @@ def test_expected_power_is_product():
         expected_leakage_power(p, -1.0)
 
 
-def test_predict_map_mode_per_bin():
+def test_expected_leakage_map_mode_per_bin():
     model, L_bin = varying_model()
     res = analyse([model], ["m"], ["m.h5"])
     np.testing.assert_allclose(res["L_I"].values[0], np.broadcast_to(L_bin, res["L_I"].shape[1:]),
                                rtol=1e-12)
     obs = observed(5)
-    exp = predict(res, obs, 0, 1, "auto")
+    exp = expected_leakage(res, obs, 0, 1, "auto")
     assert exp.attrs["model_mode"] == "map"
     p_p_obs = obs["power"].sel(stokes="P").values
     np.testing.assert_allclose(exp["power_leak"].values, p_p_obs * (L_bin[None, :] / 100) ** 2,
@@ -65,18 +66,18 @@ def test_predict_map_mode_per_bin():
             assert exp["power_leak_sph"].values[j] == pytest.approx(want, rel=1e-12)
 
 
-def test_predict_scalar_modes_scale_the_spherical_ps():
+def test_expected_leakage_scalar_modes_scale_the_spherical_ps():
     model, _ = varying_model()
     model2, _ = varying_model(seed=2)
     res = analyse([model, model2], ["a", "b"], ["a.h5", "b.h5"])
     obs = observed(6)
     pp_sph = obs["power_sph"].sel(stokes="P").values
-    med = predict(res, obs, 1, 2, "median")
+    med = expected_leakage(res, obs, 1, 2, "median")
     L1 = float(res["pareto_median"].values[1])
     assert med.attrs["L_I_model_scalar"] == L1
     np.testing.assert_allclose(med["power_leak_sph"].values, pp_sph * (L1 / 100) ** 2,
                                rtol=1e-12)
-    fld = predict(res, obs, 0, 1, "field")
+    fld = expected_leakage(res, obs, 0, 1, "field")
     Lf = 0.5 * float(res["pareto_median"].values.sum())
     np.testing.assert_allclose(fld["power_leak"].values,
                                obs["power"].sel(stokes="P").values * (Lf / 100) ** 2, rtol=1e-12)
@@ -90,12 +91,12 @@ def test_pairing_and_grid_errors():
     res = analyse([model, model], ["a", "b"], ["a.h5", "b.h5"])
     obs = observed(7)
     with pytest.raises(InputError, match="give 2 observed PS"):
-        predict(res, obs, 0, 3, "median")
+        expected_leakage(res, obs, 0, 3, "median")
     other = observed(8, geometry_args=(12, 40))
     with pytest.raises(InputError, match="grid differs"):
-        predict(res, other, 0, 2, "map")
-    assert predict(res, other, 0, 2, "auto").attrs["model_mode"] == "median"
-    assert predict(res, other, 0, 3, "auto").attrs["model_mode"] == "field"
+        expected_leakage(res, other, 0, 2, "map")
+    assert expected_leakage(res, other, 0, 2, "auto").attrs["model_mode"] == "median"
+    assert expected_leakage(res, other, 0, 3, "auto").attrs["model_mode"] == "field"
 
 
 def test_bias_correction_returns_the_signal():
@@ -112,7 +113,7 @@ def test_bias_correction_returns_the_signal():
     obs = make_ps_dataset(gaussian_voxels(SHAPE, 1.0, rng), v_p_obs, k_par3d, k_perp_cell,
                           edges, power3d_i=p_i3d)
     for mode in ("map", "median"):
-        cor = correct(obs, predict(res, obs, 0, 1, mode))
+        cor = bias_correct(obs, expected_leakage(res, obs, 0, 1, mode))
         signal2d, counts, _ = cylindrical(signal3d, k_par3d, k_perp_cell, edges)
         np.testing.assert_allclose(cor["power_I_corrected"].values, signal2d, rtol=1e-9,
                                    atol=1e-15)
@@ -133,7 +134,7 @@ def test_correction_error_formula():
     L, sL = 3.0, 0.6
     leak = expected_leakage_power(p_p, L)
     leak_err = expected_leakage_error(p_p, n, L, sL)
-    corr, err = bias_correct(p_i, n, leak, leak_err)
+    corr, err = corrected_power(p_i, n, leak, leak_err)
     l, sl = 0.03, 0.006
     want = np.sqrt((p_i[:2] / np.sqrt(n[:2])) ** 2 + (l**2 * p_p[:2] / np.sqrt(n[:2])) ** 2
                    + (2 * l * sl * p_p[:2]) ** 2)
@@ -166,7 +167,7 @@ def test_no_leakage_model_leaves_observed_unchanged():
     assert res["fit_method"].values[0] == "degenerate"
     assert float(res["pareto_median"].values[0]) == 0.0 and float(res["peak"].values[0]) == 0.0
     obs = observed(13)
-    cor = correct(obs, predict(res, obs, 0, 1, "median"))
+    cor = bias_correct(obs, expected_leakage(res, obs, 0, 1, "median"))
     np.testing.assert_array_equal(cor["power_I_corrected"].values,
                                   obs["power"].sel(stokes="I").values)
     for name, var in cor.data_vars.items():

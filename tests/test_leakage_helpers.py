@@ -81,8 +81,7 @@ def make_ps_dataset(v_i: np.ndarray, v_p: np.ndarray, k_par3d=None, k_perp_cell=
             "counts": (("k_par", "k_perp"), counts),
             "power_sph": (("stokes", "k"), power_sph, {"units": units}),
             "counts_sph": (("k",), counts_sph),
-            "k_perp_lo": (("k_perp",), edges[:-1]),
-            "k_perp_hi": (("k_perp",), edges[1:]),
+            "k_perp_bounds": (("k_perp", "nv"), np.column_stack([edges[:-1], edges[1:]])),
         },
         coords={"stokes": stokes, "k_par": k_par, "k_perp": k_perp,
                 "k": 0.5 * (k_edges[1:] + k_edges[:-1]),
@@ -117,7 +116,7 @@ def rotated_leakage(v_p: np.ndarray, eps: float, rng) -> np.ndarray:
 
 
 def write_ps(path, ds: xr.Dataset):
-    return save_product(ds, path, "ps")
+    return save_product(ds, path, "ps", overwrite=True)
 
 
 # ---- checks of the helper itself ---------------------------------------------------------

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from msleak.leakage import analyse, leakage_voxels
-from msleak.ps.spectra import power_spectrum, transform_uvcube
-from msleak.ps.uvcube import uvcube_dataset
+from msleak.ps.power import power_spectrum
+from msleak.ps.transform import transform
+from msleak.ps.grid import uvcube_dataset
 
 NCHAN, DNU, CELL, M = 50, 195312.5, 16.0, 12
 FREQ = 150e6 + DNU * np.arange(NCHAN)
@@ -18,7 +19,7 @@ def ps_from_cubes(i_cube, q_cube, u_cube):
              "fov_deg": 4.0, "beam_area_sr": (1 / CELL) ** 2}
     uv = uvcube_dataset(vis4, np.ones(vis4.shape[1:]), FREQ,
                         np.arange(-M, M + 1) * CELL, attrs)
-    return power_spectrum(transform_uvcube(uv, window="blackman-harris"))
+    return power_spectrum(transform(uv, window="blackman-harris"))
 
 
 def gauss(rng, shape, sigma):
@@ -66,7 +67,7 @@ def test_mirror_voxel_is_the_mirrored_cell_and_bins_average_the_pair():
              "fov_deg": 4.0, "beam_area_sr": (1 / CELL) ** 2}
     uv = uvcube_dataset(vis4, np.ones(vis4.shape[1:]), FREQ,
                         np.arange(-M, M + 1) * CELL, attrs)
-    dl = transform_uvcube(uv, window="blackman-harris")
+    dl = transform(uv, window="blackman-harris")
     ps = power_spectrum(dl)
     scale = ps.attrs["jy2_to_mk2_mpc3"] / dl.attrs["window_norm"]
     p_vis = dl["vis"].sel(stokes="P").values                      # (delay, v, u)
@@ -105,7 +106,7 @@ def test_independent_gaussian_median_through_ps():
              "fov_deg": 4.0, "beam_area_sr": (1 / CELL) ** 2}
     uv = uvcube_dataset(vis4, np.ones(vis4.shape[1:]), freq, np.arange(-M, M + 1) * CELL,
                         attrs)
-    ps = power_spectrum(transform_uvcube(uv, window="none"))
+    ps = power_spectrum(transform(uv, window="none"))
     res = analyse([ps], ["x"], ["x.h5"], n_boot=0)
     assert float(res["pareto_median"].values[0]) == pytest.approx(100 * r, rel=0.02)
     assert float(res["median"].values[0]) == pytest.approx(100 * r, rel=0.02)
@@ -132,7 +133,7 @@ def test_cross_power_mirror_is_the_mirrored_cross_power():
              "fov_deg": 4.0, "beam_area_sr": (1 / CELL) ** 2}
     uv = uvcube_dataset(vis4, np.ones(shape), FREQ, np.arange(-M, M + 1) * CELL, attrs,
                         halves)
-    dl = transform_uvcube(uv, window="hann")
+    dl = transform(uv, window="hann")
     ps = power_spectrum(dl, cross=True)
     scale = ps.attrs["jy2_to_mk2_mpc3"] / dl.attrs["window_norm"]
     pa, pb = (dl[n].sel(stokes="P").values for n in ("vis_a", "vis_b"))

@@ -27,10 +27,10 @@ SYMMETRIC = np.sqrt(2 * (np.sqrt(2) - 1))       # median factor of P_Q + P_U
 
 
 def _ms(path, nchan, chan_width_hz):
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
-    return simulate_ms(path, field="ncp", duration_h=1.0, nchan=nchan,
-                       chan_width_hz=chan_width_hz, stations="CS*HBA*")
+    return simulate(path, field="ncp", duration=1.0, nchan=nchan,
+                    chan_width=chan_width_hz, stations="CS*HBA*")
 
 
 def _fill(ms, i, q, u):

@@ -1,16 +1,22 @@
 """msleak paper end to end at a tiny size: every stage through the CLI, products, plausible
-leakage, resume without recomputation, --force recomputes."""
+leakage, resume without recomputation, --overwrite recomputes."""
 
 from __future__ import annotations
 
+import csv
 import json
 
+import click
 import numpy as np
 import pytest
 import xarray as xr
 from click.testing import CliRunner
 
 from msleak.cli import cli
+from msleak.study.config import StudyConfig
+from msleak.study.pipeline import study_steps
+
+from ms_helpers import split_qu_cube
 
 TINY = ["--field", "3c196", "--stations", "CS00[1-4]HBA*", "--duration", "1",
         "--interval", "600", "--nchan", "16"]
@@ -49,8 +55,6 @@ def test_every_product_exists_and_opens(study):
 
 
 def test_leakage_is_plausible(study):
-    import csv
-
     with open(study / "3c196" / "leakage" / "stats.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["label"] for r in rows] == list(FOVS)
@@ -62,7 +66,7 @@ def test_leakage_is_plausible(study):
         assert float(r["mean"]) > median                # heavy tail
 
 
-def test_rerun_resumes_and_force_recomputes(study):
+def test_rerun_resumes_and_overwrite_recomputes(study):
     state = study / ".msleak-steps.json"
     before = json.loads(state.read_text())
     ps_mtime = (study / "3c196" / "ps_4deg.h5").stat().st_mtime_ns
@@ -71,7 +75,7 @@ def test_rerun_resumes_and_force_recomputes(study):
     assert json.loads(state.read_text()) == before          # nothing ran again
     assert (study / "3c196" / "ps_4deg.h5").stat().st_mtime_ns == ps_mtime
     assert "(up to date, skipped)" in (study / "report.md").read_text()
-    result = CliRunner().invoke(cli, ["-q", "paper", str(study), *TINY, "--force"])
+    result = CliRunner().invoke(cli, ["-q", "paper", str(study), *TINY, "--overwrite"])
     assert result.exit_code == 0, result.output
     after = json.loads(state.read_text())
     assert all(after[name]["finished"] >= before[name]["finished"] for name in before)
@@ -90,8 +94,6 @@ def test_seeds_give_distinct_estimates_and_their_mean_and_std(study, study_seeds
     """--seeds 3: three sky realisations through one MS; three distinct per-field
     estimates, their mean and standard deviation in estimates.csv and report.md, and the
     first realisation equal to the one-seed study."""
-    import csv
-
     with open(study_seeds / "3c196" / "leakage" / "estimates.csv") as fh:
         est = list(csv.DictReader(fh))
     assert [r["realisation"] for r in est] == ["2018", "2019", "2020", "all"]
@@ -112,6 +114,23 @@ def test_seeds_give_distinct_estimates_and_their_mean_and_std(study, study_seeds
     assert f"{values.mean():.3g} ± {values.std(ddof=1):.2g} %" in report
 
 
+def test_steps_that_rerun_pass_overwrite(tmp_path):
+    """A step that reruns replaces its outputs: every command of the study but predict
+    (which writes its own MS columns) carries --overwrite, and accepts it."""
+    cfg = StudyConfig(outdir=tmp_path / "study", seeds=2,
+                      observed={"ncp": ("q.fits", "u.fits")})
+    steps = study_steps(cfg)
+    assert {s.args[0] for s in steps} == {"sky", "simulate", "beam", "predict", "grid",
+                                          "transform", "ps", "leakage"}
+    for step in steps:
+        command = cli.get_command(click.Context(cli), step.args[0])
+        if step.args[0] == "predict":
+            assert "--overwrite" not in step.args
+        else:
+            assert "--overwrite" in step.args, step.name
+            assert "overwrite" in {p.name for p in command.params}, step.args[0]
+
+
 def test_bad_observed_option(tmp_path):
     result = CliRunner().invoke(cli, ["paper", str(tmp_path / "x"), "--observed", "ncp=a.fits"])
     assert result.exit_code == 2
@@ -122,9 +141,6 @@ def test_observed_grid_step_runs_on_plain_q_and_u_cubes(tmp_path, monkeypatch):
     """``--observed ncp=Q.fits,U.fits`` with cubes that have no STOKES axis (as imagers
     write them): the study's observed-grid command grids them as Q and U, equal to the
     grid of the combined Q,U cube."""
-    from msleak.pipeline import StudyConfig, study_steps
-    from ms_helpers import split_qu_cube
-
     monkeypatch.chdir(tmp_path)
     runner = CliRunner()
     assert runner.invoke(cli, ["sky", "sky.fits", "--seed", "2", "--npix", "16",

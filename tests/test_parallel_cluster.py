@@ -68,21 +68,25 @@ def test_cluster_grid_same_ps(cluster, small_lofar_ms):
     np.testing.assert_allclose(p_got, p_ref, rtol=1e-10, atol=1e-10 * np.nanmax(np.abs(p_ref)))
 
 
-def test_worker_killed_once_recovers(cluster, reference, sky, tmp_path):
+def test_worker_killed_once_recovers(cluster, reference, sky, tmp_path, monkeypatch):
+    from faults import kill_worker_at
     from msleak.predict import engine
 
     ms, ref = reference
     marker = tmp_path / "killed-once"
-    engine.predict(ms, sky, scheduler=cluster.scheduler_address, memory_limit=40_000,
-                   progress=False, _fault=(1, str(marker)))
+    with monkeypatch.context() as m:
+        kill_worker_at(m, 1, str(marker))
+        engine.predict(ms, sky, scheduler=cluster.scheduler_address, memory_limit=40_000,
+                       progress=False)
     assert marker.exists()  # a worker did die on chunk 1
     got, state = _column(ms)
     assert state["complete"]
     np.testing.assert_allclose(got, ref, rtol=0, atol=2e-7 * np.abs(ref).max())
 
 
-def test_worker_killed_every_time_fails_cleanly(cluster, reference, sky):
+def test_worker_killed_every_time_fails_cleanly(cluster, reference, sky, monkeypatch):
     import casacore.tables as pt
+    from faults import kill_worker_at
 
     from msleak.errors import MsleakError
     from msleak.predict import engine
@@ -92,9 +96,10 @@ def test_worker_killed_every_time_fails_cleanly(cluster, reference, sky):
     with pt.table(str(ms), readonly=False, ack=False) as t:  # recognisable DATA
         data = (np.arange(t.nrows() * 16).reshape(-1, 4, 4) * (1 + 1j)).astype(np.complex64)
         t.putcol("DATA", data)
-    with pytest.raises(MsleakError, match="dask worker died") as info:
+    with monkeypatch.context() as m, pytest.raises(MsleakError, match="dask worker died") as info:
+        kill_worker_at(m, 2)
         engine.predict(ms, sky, scheduler=cluster.scheduler_address, memory_limit=40_000,
-                       progress=False, _fault=(2, None))
+                       progress=False)
     assert "\n" not in str(info.value) and "rerun" in str(info.value)
     with pt.table(str(ms), ack=False) as t:  # readable, DATA intact, column incomplete
         np.testing.assert_array_equal(t.getcol("DATA"), data)

@@ -80,15 +80,15 @@ def test_predict_local_schedulers_match_serial(small_lofar_ms, sky, tmp_path, sc
     assert np.abs(ref).max() > 0.1
 
 
-def test_predict_many_ms_matches_one_by_one(make_ms, sky):
+def test_predict_several_ms_matches_one_by_one(make_ms, sky):
     from msleak.predict import engine
 
     lo = make_ms("lo.ms", nchan=3)
-    hi = make_ms("hi.ms", nchan=3, freq_min_hz=150e6 + 3 * WIDTH)
+    hi = make_ms("hi.ms", nchan=3, freq_min=150e6 + 3 * WIDTH)
     lo_ref = make_ms("lo_ref.ms", nchan=3)
-    hi_ref = make_ms("hi_ref.ms", nchan=3, freq_min_hz=150e6 + 3 * WIDTH)
-    results = engine.predict_many([lo, hi], sky, scheduler="threads", workers=2,
-                                  memory_limit=150_000, progress=False)
+    hi_ref = make_ms("hi_ref.ms", nchan=3, freq_min=150e6 + 3 * WIDTH)
+    results = engine.predict([lo, hi], sky, scheduler="threads", workers=2,
+                             memory_limit=150_000, progress=False)
     assert [r.ms for r in results] == [lo, hi]
     for ms, ref_ms in ((lo, lo_ref), (hi, hi_ref)):
         engine.predict(ref_ms, sky, scheduler="sync", progress=False)
@@ -98,32 +98,34 @@ def test_predict_many_ms_matches_one_by_one(make_ms, sky):
         np.testing.assert_allclose(got, ref, rtol=0, atol=2e-7 * np.abs(ref).max())
 
 
-def test_predict_many_interrupted_resumes(make_ms, sky):
+def test_predict_several_ms_interrupted_resumes(make_ms, sky, monkeypatch):
     """A failure in the second MS leaves the first complete, the second incomplete;
     rerunning finishes the second without touching the first."""
+    from faults import fail_after_chunks
     from msleak.predict import engine
 
     a = make_ms("a.ms")
-    b = make_ms("b.ms", freq_min_hz=150e6 + 4 * WIDTH)
-    ref = make_ms("ref.ms", freq_min_hz=150e6 + 4 * WIDTH)
+    b = make_ms("b.ms", freq_min=150e6 + 4 * WIDTH)
+    ref = make_ms("ref.ms", freq_min=150e6 + 4 * WIDTH)
     engine.predict(ref, sky, scheduler="sync", progress=False)
     import casacore.tables as pt
 
     with pt.table(str(a), ack=False) as t:
         n_a = t.nrows()
-    with pytest.raises(RuntimeError, match="simulated"):
+    with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated"):
+        fail_after_chunks(m, 6)
         # chunks of one slot: 4 in a, then fail after the second of b (sync, so the failure
         # point does not depend on which thread finishes first on a loaded machine)
         # (sync gets the whole budget for one task: half of it gives the one-slot chunks
         # that threads with two workers make)
-        engine.predict_many([a, b], sky, scheduler="sync", workers=1,
-                            memory_limit=30_000, progress=False, _fail_after_chunks=6)
+        engine.predict([a, b], sky, scheduler="sync", workers=1, memory_limit=30_000,
+                       progress=False)
     got_a, state_a = _column(a)
     got_b, state_b = _column(b)
     assert state_a["complete"] and state_a["rows_done"] == n_a
     assert not state_b["complete"] and 0 < state_b["rows_done"] < got_b.shape[0]
-    results = engine.predict_many([a, b], sky, scheduler="threads", workers=2,
-                                  memory_limit=60_000, progress=False)
+    results = engine.predict([a, b], sky, scheduler="threads", workers=2,
+                             memory_limit=60_000, progress=False)
     assert not results[0].resumed and results[0].rows_written == n_a  # complete: redone
     assert results[1].resumed and results[1].rows_written == got_b.shape[0] - state_b["rows_done"]
     got_b, state_b = _column(b)
@@ -132,16 +134,17 @@ def test_predict_many_interrupted_resumes(make_ms, sky):
 
 
 def _grid(ms, **kw):
-    from msleak.ps.uvcube import grid_ms
+    import msleak
 
     kw.setdefault("chunk_rows", 20)
-    return grid_ms(ms, uv_range=(20.0, 200.0), **kw)
+    return msleak.grid(ms, uv_range=(20.0, 200.0), **kw)
 
 
 def _ps(cube):
-    from msleak.ps.spectra import power_spectrum, transform_uvcube
+    from msleak.ps.power import power_spectrum
+    from msleak.ps.transform import transform
 
-    return power_spectrum(transform_uvcube(cube, partial="zero"))
+    return power_spectrum(transform(cube, partial="zero"))
 
 
 @pytest.mark.parametrize("scheduler", ["threads", "processes"])
@@ -160,7 +163,7 @@ def test_two_subband_ms_equal_one_ms(make_ms):
     """Two MSs split in frequency give the cube and PS of one MS with both halves."""
     full = make_ms("full.ms", nchan=8)
     lo = make_ms("lo.ms", nchan=4)
-    hi = make_ms("hi.ms", nchan=4, freq_min_hz=150e6 + 4 * WIDTH)
+    hi = make_ms("hi.ms", nchan=4, freq_min=150e6 + 4 * WIDTH)
     for ms in (full, lo, hi):
         fill_data(ms)
     ref = _grid(full, scheduler="sync")
@@ -177,7 +180,7 @@ def test_two_subband_ms_equal_one_ms(make_ms):
 
 def test_gap_is_reported_and_left_empty(make_ms, caplog):
     lo = make_ms("lo.ms", nchan=3)
-    hi = make_ms("hi.ms", nchan=3, freq_min_hz=150e6 + 5 * WIDTH)  # channels 3, 4 missing
+    hi = make_ms("hi.ms", nchan=3, freq_min=150e6 + 5 * WIDTH)  # channels 3, 4 missing
     for ms in (lo, hi):
         fill_data(ms)
     with caplog.at_level(logging.WARNING, logger="msleak.parallel.multims"):
@@ -188,17 +191,17 @@ def test_gap_is_reported_and_left_empty(make_ms, caplog):
     np.testing.assert_allclose(cube["freq"].values, 150e6 + WIDTH * np.arange(8), rtol=1e-15)
     weight = cube["weight"].values
     assert not weight[3:5].any() and weight[[0, 1, 2, 5, 6, 7]].reshape(6, -1).any(axis=1).all()
-    from msleak.ps.spectra import transform_uvcube
+    from msleak.ps.transform import transform
 
-    delay = transform_uvcube(cube, partial="zero")
+    delay = transform(cube, partial="zero")
     assert delay.attrs["flagged_channels"] == 2
     assert np.isfinite(_ps(cube)["power"].values).any()
 
 
 @pytest.mark.parametrize("second, message", [
-    (dict(nchan=4, freq_min_hz=150e6 + 2 * WIDTH), "overlaps"),
-    (dict(nchan=4, freq_min_hz=150e6 + 4 * WIDTH, chan_width_hz=2 * WIDTH), "channel spacing"),
-    (dict(nchan=4, freq_min_hz=150e6 + 4.5 * WIDTH), "off the grid"),
+    (dict(nchan=4, freq_min=150e6 + 2 * WIDTH), "overlaps"),
+    (dict(nchan=4, freq_min=150e6 + 4 * WIDTH, chan_width=2 * WIDTH), "channel spacing"),
+    (dict(nchan=4, freq_min=150e6 + 4.5 * WIDTH), "off the grid"),
 ])
 def test_multi_ms_errors(make_ms, second, message):
     a = make_ms("a.ms", nchan=4)
@@ -213,7 +216,7 @@ def test_multi_ms_errors(make_ms, second, message):
 
 def test_cli_grid_two_ms_and_predict_two_ms(make_ms, sky, tmp_path):
     lo = make_ms("lo.ms", nchan=2)
-    hi = make_ms("hi.ms", nchan=2, freq_min_hz=150e6 + 2 * WIDTH)
+    hi = make_ms("hi.ms", nchan=2, freq_min=150e6 + 2 * WIDTH)
     run = CliRunner().invoke(cli, ["-q", "predict", str(lo), str(hi), "--sky", str(sky),
                                    "--beam", "none", "--workers", "2"])
     assert run.exit_code == 0, run.output
@@ -250,36 +253,32 @@ def test_predict_twice_same_ms_is_an_error(small_lofar_ms, sky):
     from msleak.predict import engine
 
     with pytest.raises(InputError, match="given twice"):
-        engine.predict_many([small_lofar_ms, small_lofar_ms], sky, beam="none")
+        engine.predict([small_lofar_ms, small_lofar_ms], sky, beam="none")
 
 
 def test_memory_budget_is_shared_and_bounds_chunks():
     from msleak.parallel import open_runner
     from msleak.ps.gridding import make_grid
-    from msleak.ps.uvcube import _rows_for_memory, _Spec
+    from msleak.ps.grid_tasks import Spec, rows_for_memory
 
     with open_runner("threads", 4, 8e8) as runner:
         assert runner.workers == 4 and runner.memory_per_task == pytest.approx(2e8)
     with open_runner("sync", None, 8e8) as runner:
         assert runner.workers == 1 and runner.memory_per_task == pytest.approx(8e8)
-    from msleak.ps.gridding import DEFAULT_TAPER
-
-    spec = _Spec(("DATA",), "wgrid", make_grid(16.0, 180.0), 30.0, 180.0, 1e-6, 1, DEFAULT_TAPER,
-                 None, None)
+    spec = Spec(("DATA",), "wgrid", make_grid(16.0, 180.0), 30.0, 180.0, 1e-6, 1, None, None)
     nchan = 50
     # what a task holds: its partial grid (measured on a real accumulator after gridding
     # one sample) and per row and channel the four correlations with weights and flags
     # (4 x 13 B), three Stokes copies (3 x 4 x 16 B) and three float64 weight arrays
     from msleak.ps.gridding import make_accumulator
 
-    acc = make_accumulator("wgrid", spec.grid, 150e6 + 195312.5 * np.arange(nchan),
-                           taper=spec.taper)
+    acc = make_accumulator("wgrid", spec.grid, 150e6 + 195312.5 * np.arange(nchan))
     acc.add(np.array([[10.0, 5.0, 1.0]]), np.ones((4, 1, nchan), complex), np.ones((1, nchan)))
     if hasattr(acc, "flush"):
         acc.flush()
     fixed = sum(x.nbytes for x in (acc.dirty, acc.natural.sum_w))
     per_row = nchan * (4 * 13 + 3 * 4 * 16 + 3 * 8)
     for budget in (2e8, 8e8):
-        rows = _rows_for_memory(budget, nchan, spec)
+        rows = rows_for_memory(budget, nchan, spec)
         used = fixed + rows * per_row
         assert 0.9 * budget < used <= budget  # within the budget, and not much below it

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from msleak.predict import predict as run_predict
-from msleak.predict.dp3ref import dp3_available, run_dp3_predict
+from dp3ref import dp3_available, run_dp3_predict
 
 # dp3 is a test dependency (pyproject [test]); only a developer without it may skip, never CI
 pytestmark = pytest.mark.skipif(not dp3_available() and not os.environ.get("CI"),

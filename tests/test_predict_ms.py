@@ -13,9 +13,10 @@ from click.testing import CliRunner
 
 from msleak.cli import cli
 from msleak.errors import InputError
-from msleak.predict import engine
+from msleak.predict import chunks
 from msleak.predict import predict as run_predict
-from ms_helpers import C
+from faults import fail_after_chunks
+from ms_helpers import C, copy_spectral_window
 from ms_helpers import channel_freqs as _freq
 from ms_helpers import direct_dft as _direct_dft
 from ms_helpers import phase_centre as _phase_centre
@@ -131,7 +132,7 @@ class _StandInBeam:
 
 def test_per_station_beam_and_centre_correction_match_direct_sum(small_lofar_ms, tmp_path,
                                                                  monkeypatch):
-    monkeypatch.setattr(engine, "_load_beam", lambda name, ms, options=None: _StandInBeam())
+    monkeypatch.setattr(chunks, "_load_beam", lambda name, ms, options=None: _StandInBeam())
     ra0, dec0 = _phase_centre(small_lofar_ms)
     rng = np.random.default_rng(8)
     l, m = rng.uniform(-0.06, 0.06, (2, 5))
@@ -210,13 +211,14 @@ def test_data_untouched_second_column_and_provenance(small_lofar_ms, tmp_path):
     assert state["sky"] == str(sky.resolve()) and state["msleak_version"]
 
 
-def test_interrupted_run_is_marked_and_resumed(small_lofar_ms, tmp_path):
+def test_interrupted_run_is_marked_and_resumed(small_lofar_ms, tmp_path, monkeypatch):
     ra0, dec0 = _phase_centre(small_lofar_ms)
     sky = _write_sky(tmp_path / "c.skymodel", [(ra0 + 0.02, dec0 - 0.01, 0.0, 1.0, 0.3, 0.0)])
     kw = dict(beam="none", progress=False, memory_limit=20_000)  # one time slot per chunk
     run_predict(small_lofar_ms, sky, column="REFERENCE", **kw)
-    with pytest.raises(RuntimeError, match="simulated failure"):
-        run_predict(small_lofar_ms, sky, _fail_after_chunks=2, **kw)
+    with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated failure"):
+        fail_after_chunks(m, 2)
+        run_predict(small_lofar_ms, sky, **kw)
     times = _col(small_lofar_ms, "TIME")
     with _table(small_lofar_ms) as t:
         state = t.getcolkeyword("MODEL_DATA", "MSLEAK_PREDICT")
@@ -318,7 +320,7 @@ def test_api_errors_are_input_errors(small_lofar_ms, tmp_path):
         run_predict(tmp_path / "none.ms", tmp_path / "none.skymodel", beam="none")
     sky = _write_sky(tmp_path / "c.skymodel", [(0.0, 0.0, 1.0, 0.0, 0.0, 0.0)])
     with pytest.raises(InputError, match="no spectral window"):
-        run_predict(small_lofar_ms, sky, beam="none", spws=[3])
+        run_predict(small_lofar_ms, sky, beam="none", spw=[3])
     with pytest.raises(InputError, match="invalid column name"):
         run_predict(small_lofar_ms, sky, beam="none", column="MODEL DATA")
     res = _invoke("predict", small_lofar_ms, "--sky", sky, "--memory-limit", "lots")
@@ -328,13 +330,7 @@ def test_api_errors_are_input_errors(small_lofar_ms, tmp_path):
 def _add_spectral_window(ms, shift_hz):
     """Append SPW 1 (channels shifted by shift_hz), DATA_DESCRIPTION 1 and a copy of every
     main-table row with DATA_DESC_ID = 1."""
-    with _table(f"{ms}/SPECTRAL_WINDOW", readonly=False) as t:
-        t.addrows(1)
-        for col in t.colnames():
-            if t.iscelldefined(col, 0):
-                t.putcell(col, 1, t.getcell(col, 0))
-        t.putcell("CHAN_FREQ", 1, t.getcell("CHAN_FREQ", 0) + shift_hz)
-        t.putcell("REF_FREQUENCY", 1, t.getcell("REF_FREQUENCY", 0) + shift_hz)
+    copy_spectral_window(ms, shift_hz)
     with _table(f"{ms}/DATA_DESCRIPTION", readonly=False) as t:
         t.addrows(1)
         t.putcell("SPECTRAL_WINDOW_ID", 1, 1)

@@ -25,16 +25,16 @@ from ms_helpers import direct_dft, phase_centre, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
-from msleak.predict import engine
+from msleak.predict import chunks, engine
 from msleak.predict import kernels as K
-from msleak.predict.engine import plan_chunks
+from msleak.predict.plan import plan_chunks
 from test_predict_kernels import _direct
 from test_predict_ms import _jones_fn
 from test_predict_safety import _fail_at, _snapshot
 
 NTIME = 5
 #: 4 KB: one time slot per chunk, so NTIME chunks
-SMALL = dict(memory_limit=4096)
+SMALL = dict(memory_limit=4096, scheduler="sync")
 
 
 class _CountingBeam:
@@ -90,12 +90,12 @@ def _col(ms, name):
 def _separate(ms, targets, **kw):
     """Each sky alone into R_<column>."""
     for sky, column, fov in targets:
-        engine.predict(ms, sky, column=f"R_{column}", fov_deg=fov, **kw)
+        engine.predict(ms, sky, column=f"R_{column}", fov=fov, **kw)
 
 
 def _together(ms, targets, **kw):
     return engine.predict(ms, [t[0] for t in targets], column=[t[1] for t in targets],
-                          fov_deg=[t[2] for t in targets], **kw)
+                          fov=[t[2] for t in targets], **kw)
 
 
 def _perturb_uvw(ms, rows):
@@ -117,7 +117,7 @@ def test_each_column_equals_its_sky_alone_to_the_last_bit(tmp_path, monkeypatch,
     targets = _targets(a, b)
     model = _CountingBeam()
     if beam == "standin":
-        monkeypatch.setattr(engine, "_load_beam", lambda name, ms_, options=None: model)
+        monkeypatch.setattr(chunks, "_load_beam", lambda name, ms_, options=None: model)
     kw = dict(beam="everybeam" if beam == "standin" else "none", double=double)
     results = _together(ms, targets, **kw)
     calls_together = list(model.ndir)

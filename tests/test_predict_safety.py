@@ -24,11 +24,12 @@ from ms_helpers import phase_centre, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
-from msleak.predict import engine
+from faults import fail_after_chunks
+from msleak.predict import chunks, engine
 
 NTIME = 5
 #: 4 KB: one time slot per chunk, so NTIME chunks
-API = dict(beam="none", memory_limit=4096)
+API = dict(beam="none", memory_limit=4096, scheduler="sync")
 
 
 def _snapshot(ms: Path):
@@ -57,7 +58,7 @@ def _fail_at(monkeypatch, when: float, error: BaseException, watch=()) -> list:
     """Make the chunk holding TIME ``when`` raise ``error``. Returns a list that gets, for
     every chunk computed, whether each MS of ``watch`` held a header backup at that moment
     (it does once the run has written a chunk into it)."""
-    original = engine._predict_chunk
+    original = chunks.predict_chunk
     seen: list = []
 
     def patched(comp, beam_model, times, *args, **kwargs):
@@ -66,7 +67,7 @@ def _fail_at(monkeypatch, when: float, error: BaseException, watch=()) -> list:
             raise error
         return original(comp, beam_model, times, *args, **kwargs)
 
-    monkeypatch.setattr(engine, "_predict_chunk", patched)
+    monkeypatch.setattr(chunks, "predict_chunk", patched)
     return seen
 
 
@@ -109,8 +110,9 @@ def test_refused_rerun_keeps_an_interrupted_run_resumable(ms, tmp_path, monkeypa
     ref = tmp_path / "ref.ms"
     shutil.copytree(ms, ref)
     engine.predict(ref, sky, **API)
-    with pytest.raises(RuntimeError, match="simulated failure"):
-        engine.predict(ms, sky, _fail_after_chunks=2, **API)
+    with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated failure"):
+        fail_after_chunks(m, 2)
+        engine.predict(ms, sky, **API)
     before = _snapshot(ms)
     assert (ms / colio.BACKUP_DIR).is_dir()
     with monkeypatch.context() as m:
@@ -146,7 +148,7 @@ def test_interruption_at_last_chunk_stays_resumable(ms, tmp_path, monkeypatch, i
 
 
 def test_refusal_in_second_ms_undoes_the_first(tmp_path, monkeypatch):
-    """predict_many: the first MS is complete when the second is refused at its last
+    """Two MSs: the first MS is complete when the second is refused at its last
     chunk; both are put back."""
     one = build_ms(tmp_path / "one.ms", ntime=NTIME)
     two = build_ms(tmp_path / "two.ms", ntime=NTIME, time0_s=56329.0 * 86400.0 + 3600.0)
@@ -155,7 +157,7 @@ def test_refusal_in_second_ms_undoes_the_first(tmp_path, monkeypatch):
     seen = _fail_at(monkeypatch, _last_time(two), InputError("refused in the test"),
                     [one, two])
     with pytest.raises(InputError, match="refused in the test"):
-        engine.predict_many([one, two], _sky(tmp_path, one), **API)
+        engine.predict([one, two], _sky(tmp_path, one), **API)
     assert len(seen) == 2 * NTIME and seen[-1] == [False, True]
     assert [_snapshot(one), _snapshot(two)] == before
 
@@ -184,5 +186,5 @@ def test_unusable_column_in_second_ms_refused_before_writing(tmp_path):
         t.addcols(pt.makearrcoldesc("MODEL_DATA", 0j, ndim=2, shape=[2, 4], options=4))
     before = [_snapshot(one), _snapshot(two)]
     with pytest.raises(InputError, match="exists with another shape"):
-        engine.predict_many([one, two], _sky(tmp_path, one), **API)
+        engine.predict([one, two], _sky(tmp_path, one), **API)
     assert [_snapshot(one), _snapshot(two)] == before

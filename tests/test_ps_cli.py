@@ -53,8 +53,9 @@ def test_image_path_matches_visibility_path(tmp_path):
     """Same sky: FFT of the image cube vs. gridded visibilities sampled at cell centres."""
     from msleak.ps.fitscube import grid_image
     from msleak.ps.gridding import CellAccumulator, make_grid
-    from msleak.ps.spectra import power_spectrum, transform_uvcube
-    from msleak.ps.uvcube import uvcube_dataset
+    from msleak.ps.power import power_spectrum
+    from msleak.ps.transform import transform
+    from msleak.ps.grid import uvcube_dataset
 
     n, cell = 32, 16.0
     dl = 1 / (n * cell)  # rad: the image's cells are then 16 wavelengths
@@ -85,8 +86,8 @@ def test_image_path_matches_visibility_path(tmp_path):
         "cell_lambda": cell, "uv_min_lambda": 30.0, "uv_max_lambda": 180.0,
         "fov_deg": np.degrees(1 / cell), "beam_area_sr": (1 / cell) ** 2})
     assert uv_img.attrs["beam_area_sr"] == pytest.approx(uv_vis.attrs["beam_area_sr"], rel=1e-9)
-    ps_img = power_spectrum(transform_uvcube(uv_img))
-    ps_vis = power_spectrum(transform_uvcube(uv_vis))
+    ps_img = power_spectrum(transform(uv_img))
+    ps_vis = power_spectrum(transform(uv_vis))
     np.testing.assert_allclose(ps_img["k_perp"], ps_vis["k_perp"], rtol=1e-12)
     np.testing.assert_allclose(ps_img["k_par"], ps_vis["k_par"], rtol=1e-12)
     for name in ("power", "power_jy2", "power_1d"):
@@ -160,7 +161,7 @@ def _flag_all(ms):
     ("flagged", "are flagged"),
 ])
 def test_cli_ms_errors(small_lofar_ms, tmp_path, case, pattern):
-    from msleak.ps.uvcube import grid_ms
+    import msleak
 
     args = ["grid", small_lofar_ms, "-o", tmp_path / "g.h5"]
     kwargs = {}
@@ -176,7 +177,7 @@ def test_cli_ms_errors(small_lofar_ms, tmp_path, case, pattern):
     assert r.exit_code == 2
     assert pattern in r.output and len(r.output.strip().splitlines()) == 1
     with pytest.raises(InputError, match=pattern):
-        grid_ms(small_lofar_ms, **kwargs)
+        msleak.grid(small_lofar_ms, **kwargs)
 
 
 def test_cli_image_without_freq_axis(tmp_path):

@@ -8,8 +8,9 @@ from msleak.errors import InputError
 from msleak.constants import FREQ_21CM
 from msleak.ps.cosmology import cosmo_at, get_cosmology
 from msleak.ps.delay import delay_axis, delay_transform, spectral_window
-from msleak.ps.spectra import power_spectrum, transform_uvcube
-from msleak.ps.uvcube import uvcube_dataset
+from msleak.ps.power import power_spectrum
+from msleak.ps.transform import transform
+from msleak.ps.grid import uvcube_dataset
 
 NCHAN = 50
 DNU = 195312.5
@@ -50,7 +51,7 @@ def test_sinusoid_peaks_at_its_k_par(window):
     spec = np.exp(2j * np.pi * k * np.arange(NCHAN) / NCHAN)
     vis4 = np.zeros((4, NCHAN, g, g), complex)
     vis4[1] = spec[:, None, None]  # Stokes Q only
-    ps = power_spectrum(transform_uvcube(_uvcube(vis4), window=window))
+    ps = power_spectrum(transform(_uvcube(vis4), window=window))
     cos = cosmo_at(0.5 * (FREQ[0] + FREQ[-1]))
     expected_kpar = cos.k_par(k / (NCHAN * DNU))
     p_q = np.nanmean(ps["power_jy2"].sel(stokes="Q").values, axis=1)
@@ -67,7 +68,7 @@ def test_white_noise_flat_at_predicted_level(window):
     g, sigma = 27, 0.3  # complex noise of variance sigma^2 per cell and channel
     vis4 = sigma / np.sqrt(2) * (rng.normal(size=(4, NCHAN, g, g))
                                  + 1j * rng.normal(size=(4, NCHAN, g, g)))
-    ps = power_spectrum(transform_uvcube(_uvcube(vis4), window=window))
+    ps = power_spectrum(transform(_uvcube(vis4), window=window))
     expected = sigma ** 2 / NCHAN  # E|V~|^2 / window_norm
     p1 = ps["power_jy2"].sel(stokes="I").values  # (k_par, k_perp)
     counts = ps["counts"].values
@@ -120,7 +121,7 @@ def test_point_source_at_centre_only_k_par_zero():
     acc.add(uvw_m, vis4, wgt)
     vis, weight = acc.result()
     ds = _uvcube(vis, weight, uv=(10.0, 60.0))
-    ps = power_spectrum(transform_uvcube(ds, window="none"), n_perp=3)
+    ps = power_spectrum(transform(ds, window="none"), bins=3)
     p = ps["power_jy2"].values  # (stokes, k_par, k_perp)
     assert np.nanmin(p[0, 0]) > 0.99 and np.nanmax(p[0, 0]) < 1.01
     assert np.nanmax(p[0, 1:]) < 1e-12
@@ -139,7 +140,7 @@ def test_cross_power_removes_noise_bias():
     ds["vis_b"] = (ds["vis"].dims, np.concatenate([signal + nb, (signal + nb)[1:2] * 0], 0))
     ds["weight_a"] = ds["weight"]
     ds["weight_b"] = ds["weight"]
-    dl = transform_uvcube(ds, window="none")
+    dl = transform(ds, window="none")
     cross = power_spectrum(dl)
     auto = power_spectrum(dl, cross=False)
     assert cross.attrs["cross_power"] == 1
@@ -170,5 +171,5 @@ def test_bad_inputs():
         cosmo_at(2e9)
     empty = _uvcube(np.zeros((4, NCHAN, 5, 5), complex), np.zeros((NCHAN, 5, 5)))
     with pytest.raises(InputError, match="empty"):
-        transform_uvcube(empty)
+        transform(empty)
     assert isinstance(empty, xr.Dataset)

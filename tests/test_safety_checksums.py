@@ -107,7 +107,7 @@ def test_chain_never_changes_data_or_flags(small_lofar_ms, tmp_path):
     assert _column_digests(ms) == before
 
 
-def test_refused_and_failed_predicts_leave_ms_unchanged(small_lofar_ms, tmp_path):
+def test_refused_and_failed_predicts_leave_ms_unchanged(small_lofar_ms, tmp_path, monkeypatch):
     ms = small_lofar_ms
     _randomise(ms, seed=5)
     sky = _write_sky(tmp_path / "sky.skymodel", *_phase_centre(ms))
@@ -123,36 +123,41 @@ def test_refused_and_failed_predicts_leave_ms_unchanged(small_lofar_ms, tmp_path
     assert _file_digests(ms) == files
 
     # an unexpected failure after some chunks: DATA intact, column marked incomplete
+    from faults import fail_after_chunks
     from msleak.predict import engine
 
-    with pytest.raises(RuntimeError, match="simulated failure"):
-        engine.predict(ms, sky, beam="dipole", memory_limit=2048, _fail_after_chunks=1)
+    with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated failure"):
+        fail_after_chunks(m, 1)
+        engine.predict(ms, sky, beam="dipole", memory_limit=2048, scheduler="sync")
     assert _column_digests(ms) == before
     with _table(ms) as t:
         state = t.getcolkeyword("MODEL_DATA", "MSLEAK_PREDICT")
     assert not state["complete"] and 0 < state["rows_done"] < 60
 
 
-def test_predict_over_existing_model_replaces_whole_chunks(small_lofar_ms, tmp_path):
+def test_predict_over_existing_model_replaces_whole_chunks(small_lofar_ms, tmp_path,
+                                                          monkeypatch):
     """An existing MODEL_DATA is replaced chunk by chunk: after a failure every row holds
     either its old or its new values (never a mix within a row), and the rows the run
     state reports as done hold the new values."""
+    from faults import fail_after_chunks
     from msleak.predict import engine
 
     ms = small_lofar_ms
     ra0, dec0 = _phase_centre(ms)
     old_sky = _write_sky(tmp_path / "old.skymodel", ra0 + 0.01, dec0)
     new_sky = _write_sky(tmp_path / "new.skymodel", ra0, dec0)
-    engine.predict(ms, old_sky, beam="none", memory_limit=2048)
+    engine.predict(ms, old_sky, beam="none", memory_limit=2048, scheduler="sync")
     with _table(ms) as t:
         old = t.getcol("MODEL_DATA")
     ref_ms = tmp_path / "ref.ms"
     shutil.copytree(ms, ref_ms)
-    engine.predict(ref_ms, new_sky, beam="none", memory_limit=2048)
+    engine.predict(ref_ms, new_sky, beam="none", memory_limit=2048, scheduler="sync")
     with _table(ref_ms) as t:
         new = t.getcol("MODEL_DATA")
-    with pytest.raises(RuntimeError):
-        engine.predict(ms, new_sky, beam="none", memory_limit=2048, _fail_after_chunks=2)
+    with monkeypatch.context() as m, pytest.raises(RuntimeError):
+        fail_after_chunks(m, 2)
+        engine.predict(ms, new_sky, beam="none", memory_limit=2048, scheduler="sync")
     with _table(ms) as t:
         part = t.getcol("MODEL_DATA")
         times = t.getcol("TIME")
@@ -164,7 +169,7 @@ def test_predict_over_existing_model_replaces_whole_chunks(small_lofar_ms, tmp_p
     done = times <= state["progress"]["f0_d0"]
     assert np.all(is_new[done]) and not state["complete"]
     # the rerun completes it, equal to the uninterrupted run
-    res = engine.predict(ms, new_sky, beam="none", memory_limit=2048)
+    res = engine.predict(ms, new_sky, beam="none", memory_limit=2048, scheduler="sync")
     assert res.resumed
     with _table(ms) as t:
         np.testing.assert_array_equal(t.getcol("MODEL_DATA"), new)

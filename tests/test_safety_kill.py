@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 #: 40 time slots of 10 s, 6 HBA fields, 4 channels: ~4 s of predict, one slot per chunk
-KILL_MS = dict(duration_h=40 * 10 / 3600, interval_s=10.0)
+KILL_MS = dict(duration=40 * 10 / 3600, interval=10.0)
 PREDICT_ARGS = ["--beam", "dipole", "--memory-limit", "4KB"]
 
 
@@ -65,11 +65,11 @@ def _write_sky(path, ra0, dec0, shift=0.0):
 @pytest.fixture(scope="module")
 def kill_env(tmp_path_factory):
     from msleak.predict import engine
-    from msleak.telescope.simulate import simulate_ms
+    from msleak.telescope.simulate import simulate
 
     root = tmp_path_factory.mktemp("kill")
-    master = simulate_ms(root / "master.ms", field="3c196", freq_min_hz=150e6, nchan=4,
-                         chan_width_hz=195312.5, stations="CS00[1-3]HBA*", **KILL_MS)
+    master = simulate(root / "master.ms", field="3c196", freq_min=150e6, nchan=4,
+                      chan_width=195312.5, stations="CS00[1-3]HBA*", **KILL_MS)
     rng = np.random.default_rng(11)
     with _table(master, readonly=False) as t:
         shape = t.getcol("DATA").shape
@@ -203,11 +203,12 @@ def test_predict_sigkill_then_rerun(kill_env, tmp_path):
     assert sum(1 for *_, seen in outcomes if seen.endswith("incomplete")) >= 2, (seed, outcomes)
 
 
-def test_truncated_header_is_repaired_by_rerun(small_lofar_ms, tmp_path):
+def test_truncated_header_is_repaired_by_rerun(small_lofar_ms, tmp_path, monkeypatch):
     """The state a kill during a flush can leave: the column's header file truncated, the
     MS unreadable. grid refuses the half-written column; the predict rerun restores the
     header, resumes and gives the uninterrupted result; the backup is then removed."""
     from click.testing import CliRunner
+    from faults import fail_after_chunks
 
     from msleak.cli import cli
     from msleak.io import columns as colio
@@ -221,8 +222,9 @@ def test_truncated_header_is_repaired_by_rerun(small_lofar_ms, tmp_path):
     shutil.copytree(ms, ref)
     engine.predict(ref, sky, **_api_args())
     data = _digest(ms)
-    with pytest.raises(RuntimeError, match="simulated failure"):
-        engine.predict(ms, sky, _fail_after_chunks=1, **_api_args())
+    with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated failure"):
+        fail_after_chunks(m, 1)
+        engine.predict(ms, sky, **_api_args())
     r = CliRunner().invoke(cli, ["grid", str(ms), "--column", "MODEL_DATA", "-o",
                                  str(tmp_path / "g.h5")])
     assert r.exit_code == 2 and "incomplete" in r.output and "rerun" in r.output, r.output
@@ -290,7 +292,7 @@ def _wait_for(proc, marker: bytes) -> bytes:
 
 
 def _api_args():
-    return dict(beam="dipole", memory_limit=4096)
+    return dict(beam="dipole", memory_limit=4096, scheduler="sync")
 
 
 def test_simulate_sigkill_and_interrupt(tmp_path):

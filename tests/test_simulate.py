@@ -58,7 +58,7 @@ def test_rows_times_channels(small_lofar_ms):
 
 
 def test_autocorrelations_option(make_ms):
-    ms = make_ms("auto.ms", autocorrelations=True, duration_h=120 / 3600)
+    ms = make_ms("auto.ms", autocorrelations=True, duration=120 / 3600)
     a1, a2 = _main(ms, "ANTENNA1", "ANTENNA2")
     assert len(a1) == 6 * 7 // 2 and np.sum(a1 == a2) == 6
 
@@ -149,7 +149,7 @@ def test_3c196_is_centred_on_transit(make_ms):
     from astropy.time import Time
     import astropy.units as u
 
-    ms = make_ms("transit.ms", duration_h=2.0, interval_s=600.0, stations="CS001HBA*")
+    ms = make_ms("transit.ms", duration=2.0, interval=600.0, stations="CS001HBA*")
     times = read_times(ms)
     mid = Time(0.5 * (times[0] + times[-1]) / 86400.0, format="mjd", scale="utc")
     lon = EarthLocation.from_geocentric(*read_antennas(ms).positions[0], unit=u.m).lon
@@ -160,7 +160,7 @@ def test_3c196_is_centred_on_transit(make_ms):
 
 
 def test_ncp_field(make_ms):
-    ms = make_ms("ncp.ms", field="ncp", duration_h=240 / 3600)
+    ms = make_ms("ncp.ms", field="ncp", duration=240 / 3600)
     f = read_fields(ms)[0]
     assert f.name == "NCP" and np.degrees(f.dec) == pytest.approx(90.0)
     (uvw,) = _main(ms, "UVW")
@@ -254,3 +254,59 @@ def test_version_and_help_on_every_command():
         result = runner.invoke(cli, [name, "--help"])
         assert result.exit_code == 0, (name, result.output)
         assert "Usage:" in result.output
+
+
+def test_verb_equals_cli_and_writes_history(tmp_path):
+    """msleak.simulate and `msleak simulate` with the same options make identical main and
+    ANTENNA tables (exact), and each adds one HISTORY row saying what was simulated."""
+    import msleak
+    from msleak.io.ms import read_history
+
+    options = dict(field="ncp", duration=0.1, interval=120.0, freq_min=140e6, nchan=3,
+                   chan_width=1e5, stations="CS00[1-2]HBA*")
+    verb = msleak.simulate(tmp_path / "verb.ms", **options)
+    assert verb == tmp_path / "verb.ms"
+    cli_out = tmp_path / "cli.ms"
+    result = CliRunner().invoke(cli, ["simulate", str(cli_out), "--field", "ncp",
+                                      "--duration", "0.1", "--interval", "120",
+                                      "--freq-min", "140e6", "--nchan", "3",
+                                      "--chan-width", "1e5", "--stations", "CS00[1-2]HBA*"])
+    assert result.exit_code == 0, result.output
+    for a, b in zip(_main(verb, "UVW", "TIME", "ANTENNA1", "ANTENNA2"),
+                    _main(cli_out, "UVW", "TIME", "ANTENNA1", "ANTENNA2")):
+        np.testing.assert_array_equal(a, b)
+    av, ac = read_antennas(verb), read_antennas(cli_out)
+    assert av.names == ac.names == ["CS001HBA0", "CS001HBA1", "CS002HBA0", "CS002HBA1"]
+    np.testing.assert_array_equal(av.positions, ac.positions)
+    np.testing.assert_allclose(read_spectral_windows(verb)[0].freq, 140e6 + 1e5 * np.arange(3),
+                               rtol=0, atol=1e-3)
+    for ms, python_call in ((verb, True), (cli_out, False)):
+        (row,) = read_history(ms)
+        assert row.startswith("msleak ") and "simulated 4 LOFAR stations, field NCP, 3 x 120 s" in row
+        with pt.table(str(ms / "HISTORY"), ack=False) as t:
+            command = t.getcell("CLI_COMMAND", 0)[0]
+        # the Python call names its options; the CLI records this process's command line
+        assert command.startswith("msleak.simulate(") == python_call
+        assert ("duration=0.1" in command) == python_call
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(phase_centre=(10.0,)), "--phase-centre needs RA_DEG,DEC_DEG"),
+    (dict(field="m31"), "unknown field 'm31'"),
+    (dict(nchan=2.5), "--nchan must be a positive integer"),
+])
+def test_verb_errors(tmp_path, kwargs, message):
+    import msleak
+
+    with pytest.raises(msleak.InputError, match=message.replace("(", r"\(")):
+        msleak.simulate(tmp_path / "x.ms", **kwargs)
+    assert not (tmp_path / "x.ms").exists()
+
+
+def test_bad_layout_with_overwrite_keeps_the_old_ms(small_lofar_ms, tmp_path):
+    """A refused --overwrite run (bad --stations) leaves the existing MS as it was."""
+    before = read_times(small_lofar_ms)
+    result = CliRunner().invoke(cli, ["simulate", str(small_lofar_ms), "--overwrite",
+                                      "--stations", "RS999*"])
+    assert result.exit_code == 2 and "no LOFAR HBA core field matches" in result.output
+    np.testing.assert_array_equal(read_times(small_lofar_ms), before)

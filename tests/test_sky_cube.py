@@ -55,7 +55,7 @@ def test_wcs_round_trip(ra, dec):
 def test_voxel_sources_at_direction_cosines(ra0, dec0):
     npix, pix = 16, 0.5
     cube = toy_cube(npix=npix, ra=10.0, dec=20.0, pixel_deg=pix)
-    src = sources_from_cube(cube, phase_centre=(math.radians(ra0), math.radians(dec0)))
+    src = sources_from_cube(recentre(cube, math.radians(ra0), math.radians(dec0)))
     assert len(src) == npix * npix
     l_, m_, n_ = src.lmn(math.radians(ra0), math.radians(dec0))
     # SIN: pixel offsets from the reference are the direction cosines, RA to the left

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from msleak.errors import InputError
-from msleak.io.skymodel import format_dec, format_ra, parse_angle, read_skymodel, write_skymodel
-from msleak.sky import PointSources, make_celestial_wcs, read_sky, sources_from_cube
+from msleak.io.angles import format_dec, format_ra, parse_angle
+from msleak.io.skymodel import read_sky, read_skymodel, write_skymodel
+from msleak.sky import PointSources, make_celestial_wcs, sources_from_cube
 from msleak.sky.cube import SkyCube
 
 C = 299_792_458.0

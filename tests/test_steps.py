@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from msleak.errors import MsleakError
-from msleak.steps import Step, StepRunner
+from msleak.study.steps import Step, StepRunner
 
 
 def _writer(calls):
@@ -18,7 +18,7 @@ def _writer(calls):
     return invoke
 
 
-def test_skip_rerun_force(tmp_path):
+def test_skip_rerun_overwrite(tmp_path):
     src = tmp_path / "in.txt"
     src.write_text("a")
     out = tmp_path / "out.txt"
@@ -29,7 +29,7 @@ def test_skip_rerun_force(tmp_path):
     assert len(calls) == 1
     src.write_text("changed input")
     assert StepRunner(tmp_path).run(step, _writer(calls)) is True        # input changed
-    assert StepRunner(tmp_path, force=True).run(step, _writer(calls)) is True
+    assert StepRunner(tmp_path, overwrite=True).run(step, _writer(calls)) is True
     assert len(calls) == 3
     out.unlink()
     assert StepRunner(tmp_path).run(step, _writer(calls)) is True        # output missing

@@ -68,7 +68,7 @@ def _fill_data(ms, seed=0):
 
 
 def _dp3(args, cwd):
-    from msleak.predict.dp3ref import dp3_available, dp3_environment
+    from dp3ref import dp3_available, dp3_environment
 
     if not dp3_available():
         pytest.skip("dp3 is not installed")
@@ -82,7 +82,7 @@ def _dp3(args, cwd):
 def test_dp3_averaged_ms(make_ms, tmp_path):
     """DP3 averages 2 times x 2 channels of a msleak MS; predict matches the direct DFT
     on the averaged UVW and channels, and grid reads DATA, WEIGHT_SPECTRUM and flags."""
-    ms = make_ms("in.ms", duration_h=8 * 120 / 3600, nchan=8)
+    ms = make_ms("in.ms", duration=8 * 120 / 3600, nchan=8)
     _fill_data(ms)
     out = tmp_path / "avg.ms"
     _dp3([f"msin={ms}", f"msout={out}", "steps=[avg]", "avg.type=averager",

@@ -93,7 +93,7 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
     _check_options(model, options, {"element_model"})
     element_model = options.get("element_model", "default")
     if model == "everybeam":
-        fast = _try_fast(ms, element_model, used)
+        fast = _try_fast(ms, element_model, field_row, used, ddid)
         if fast is not None:
             return fast
     from msleak.beam.everybeam_direct import EveryBeamDirect
@@ -102,21 +102,29 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
                            used_stations=used)
 
 
-def _try_fast(ms: Path, element_model: str, used):
-    """The fast LOFAR evaluator if the MS is a LOFAR HBA MS with its LOFAR tables, else None
-    (EveryBeam directly, which says why it cannot read an MS)."""
-    from msleak.beam.lofar_tables import read_lofar_array
-    from msleak.io.ms import read_telescope_name
+def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | None = None):
+    """The fast evaluator of a LOFAR HBA MS with its LOFAR tables or of an SKA-Low MS with
+    its PHASED_ARRAY table, else None (EveryBeam directly, which says why it cannot read an
+    MS)."""
+    from msleak.beam.lofar_array import read_lofar_array
+    from msleak.io.ms import has_lofar_tables, read_data_descriptions, read_telescope_name
+    from msleak.io.phased_array import has_phased_array
 
     telescope = read_telescope_name(ms).upper()
-    if telescope != "LOFAR" or not (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists():
+    if telescope == "SKA-LOW" and has_phased_array(ms):
+        from msleak.beam.ska_low import SkaLowBeam
+
+        spw = None if ddid is None else read_data_descriptions(ms)[ddid][0]
+        return SkaLowBeam.from_ms(ms, element_model=element_model, field_id=field_id,
+                                  used_stations=used, spw=spw)
+    if telescope != "LOFAR" or not has_lofar_tables(ms):
         log.info("%s: telescope %r without LOFAR tables: using EveryBeam directly (slow)", ms,
                  telescope)
         return None
     if element_model not in ("default", "hamaker"):
         log.info("element model %r: using EveryBeam directly (slow)", element_model)
         return None
-    array = read_lofar_array(ms)
+    array = read_lofar_array(ms, field_id)
     if any(f.name == "LBA" for s in array.stations for f in s.fields):
         log.info("%s has LBA fields: using EveryBeam directly (slow)", ms)
         return None

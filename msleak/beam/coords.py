@@ -189,7 +189,7 @@ def _solve_map(anchors: np.ndarray, images: np.ndarray) -> tuple[np.ndarray, np.
     cross[:, 2, 0], cross[:, 2, 1] = -y[:, 1], y[:, 0]
     system = np.einsum("nij,njk->nik", cross, rows).reshape(3 * n, 12)
     # column scaling is unnecessary: all unknowns are of order one
-    x = np.linalg.svd(system)[2][-1]
+    x = np.linalg.svd(system, full_matrices=False)[2][-1]  # the null vector: thin SVD suffices
     matrix, offset = x[:9].reshape(3, 3), x[9:]
     scale = np.cbrt(np.linalg.det(matrix))
     return matrix / scale, offset / scale

@@ -37,6 +37,7 @@ import numpy as np
 from msleak.beam.base import BeamModel, BeamUnavailable
 from msleak.beam.coords import (clip_pole, enu_basis, exact_j2000_to_itrf, itrf_map,
                                 radec_to_unit, sky_basis)
+from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 
 __all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
@@ -44,7 +45,6 @@ __all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
 log = logging.getLogger(__name__)
 
 StationFactor = Literal["airy", "gaussian", "none"]
-from msleak.constants import SPEED_OF_LIGHT
 _NCP = np.array([0.0, 0.0, 1.0])
 
 
@@ -175,19 +175,14 @@ class DipoleBeam(BeamModel):
     @classmethod
     def from_ms(cls, ms, *, field_id: int = 0, used_stations=None, **options) -> "DipoleBeam":
         """The dipole beam of the stations ``used_stations`` (ANTENNA rows, default all) of
-        ``ms``; phase centre and pointing (DELAY_DIR, else PHASE_DIR) of FIELD ``field_id``."""
-        from pathlib import Path
-
-        from msleak.io.ms import open_table, read_antennas, read_fields
+        ``ms``; phase centre and pointing (:func:`msleak.io.ms.read_beam_directions`:
+        DELAY_DIR, else PHASE_DIR) of FIELD ``field_id``."""
+        from msleak.io.ms import read_antennas, read_beam_directions
 
         antennas = read_antennas(ms)
-        field = read_fields(ms)[field_id]
-        with open_table(Path(ms) / "FIELD") as t:
-            pointing = np.asarray(t.getcell("DELAY_DIR", field_id), float).reshape(-1, 2)[0] \
-                if "DELAY_DIR" in t.colnames() else (field.ra, field.dec)
-        return cls(antennas.positions, antennas.diameter, tuple(pointing),
-                   (field.ra, field.dec), antennas.names, used_stations=used_stations,
-                   **options)
+        directions = read_beam_directions(ms, field_id)
+        return cls(antennas.positions, antennas.diameter, directions.delay, directions.phase,
+                   antennas.names, used_stations=used_stations, **options)
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         out = np.zeros((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)

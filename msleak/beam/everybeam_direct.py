@@ -44,7 +44,7 @@ def load_everybeam_telescope(ms: str | os.PathLike, element_model: str = "defaul
         MS or environment lacks what that model reads (LOFAR tables, MWA dipole delays, the
         MWA coefficients file); any error of EveryBeam itself likewise.
     """
-    from msleak.io.ms import open_table, read_telescope_name
+    from msleak.io.ms import has_subtable, read_telescope_name
 
     name = read_telescope_name(ms)
     kind = everybeam_telescope(name)
@@ -53,12 +53,10 @@ def load_everybeam_telescope(ms: str | os.PathLike, element_model: str = "defaul
         raise BeamUnavailable(f"{ms}: EveryBeam has no beam model for TELESCOPE_NAME {name!r} "
                               f"(its Python bindings know {known})")
     coeff_path = ""
-    if kind == "LOFAR" and not (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists():
+    if kind == "LOFAR" and not has_subtable(ms, "LOFAR_ANTENNA_FIELD"):
         raise BeamUnavailable(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam")
     if kind == "MWA":
-        with open_table(ms) as t:
-            has_delays = "MWA_TILE_POINTING" in t.getkeywords()
-        if not has_delays:
+        if not has_subtable(ms, "MWA_TILE_POINTING"):
             raise BeamUnavailable(f"{ms}: no MWA_TILE_POINTING table (the tiles' dipole "
                                   "delays), which EveryBeam's MWA beam needs")
         coeff_path = _mwa_coefficients(ms)
@@ -123,7 +121,8 @@ class EveryBeamDirect(BeamModel):
 
     def __init__(self, ms: str | os.PathLike, element_model: str = "default",
                  field_id: int = 0, used_stations=None):
-        from msleak.io.ms import iter_rows, read_antennas, read_fields, read_spectral_windows
+        from msleak.io.ms import (iter_rows, read_antennas, read_beam_directions, read_fields,
+                                  read_spectral_windows)
 
         self.telescope = load_everybeam_telescope(ms, element_model)
         self._setting = _MWA_SETTING if type(self.telescope).__name__ == "MWA" else ""
@@ -132,20 +131,21 @@ class EveryBeamDirect(BeamModel):
         super().__init__(self.telescope.nr_stations, (field.ra, field.dec),
                          list(antennas.names), used_stations)
         self.ms = Path(ms)
-        self._delay, self._tile = self._read_beam_dirs(ms, (field.ra, field.dec), field_id)
-        self._axes = self._station_axes(ms)
+        directions = read_beam_directions(ms, field_id)
+        self._delay, self._tile = directions.delay, directions.tile
+        self._axes = self._station_axes(ms, field_id)
         first = next(iter_rows(ms, ["TIME"], chunk_rows=1), (None, {"TIME": []}))[1]["TIME"]
         if len(first):
             self.jones(first[:1], read_spectral_windows(ms)[0].freq[:1], [field.ra],
                        [field.dec], stations=self.used_stations[:1])
 
     @staticmethod
-    def _station_axes(ms):
+    def _station_axes(ms, field_id: int):
         """Per station the common axes (3, 3) of its LOFAR fields, or None."""
-        from msleak.beam.lofar_tables import read_lofar_array
+        from msleak.beam.lofar_array import read_lofar_array
 
         try:
-            array = read_lofar_array(ms)
+            array = read_lofar_array(ms, field_id)
         except InputError:
             return None
         out = []
@@ -154,18 +154,6 @@ class EveryBeamDirect(BeamModel):
             same = all(np.allclose(a, axes[0], atol=1e-12) for a in axes)
             out.append(axes[0] if same else None)
         return out
-
-    @staticmethod
-    def _read_beam_dirs(ms, default, row):
-        from msleak.io.ms import open_table
-
-        with open_table(Path(ms) / "FIELD") as t:
-            cols = t.colnames()
-            delay = np.asarray(t.getcell("DELAY_DIR", row), float).reshape(-1, 2)[0] \
-                if "DELAY_DIR" in cols else np.asarray(default)
-            tile = np.asarray(t.getcell("LOFAR_TILE_BEAM_DIR", row), float).reshape(-1, 2)[0] \
-                if "LOFAR_TILE_BEAM_DIR" in cols else delay
-        return (float(delay[0]), float(delay[1])), (float(tile[0]), float(tile[1]))
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         tel = self.telescope

@@ -12,10 +12,7 @@ done here for all directions, channels and stations of a time slot at once:
 3. tile (16 elements, towards LOFAR_TILE_BEAM_DIR) and station (tiles, towards DELAY_DIR)
    array factors and the field phase-reference weights in numba.
 
-It agrees with ``everybeam`` ``station_response`` to ~1e-10 relative (1e-7 next to the
-NCP, where EveryBeam's sky basis is ill-conditioned; tests require 1e-5) and evaluates 48
-stations x 2500 directions x 50 channels in ~0.35 s per time slot on 2 cores, about 20 times
-faster than EveryBeam called per direction (scripts/bench_beam.py).
+Accuracy against EveryBeam and speed: docs/beam.md ("Validation", "Speed").
 """
 
 from __future__ import annotations
@@ -28,7 +25,7 @@ from msleak._everybeam import import_everybeam
 from msleak.beam.base import BeamModel
 from msleak.beam.coords import (clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit,
                                 sky_basis)
-from msleak.beam.lofar_tables import LofarArray
+from msleak.beam.lofar_array import LofarArray
 from msleak.errors import InputError
 
 __all__ = ["LofarFastBeam", "element_jones", "sky_rotation", "field_angles"]
@@ -114,7 +111,7 @@ class LofarFastBeam(BeamModel):
     Parameters
     ----------
     array : LofarArray
-        From :func:`msleak.beam.lofar_tables.read_lofar_array`.
+        From :func:`msleak.beam.lofar_array.read_lofar_array`.
     element_model : str
         EveryBeam element model name; only ``hamaker`` is supported by the fast path.
     used_stations : int array, optional

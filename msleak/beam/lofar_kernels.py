@@ -35,8 +35,6 @@ from msleak.constants import SPEED_OF_LIGHT
 
 __all__ = ["station_jones_kernel", "sincos", "apply_left_inverse"]
 
-#: m/s, the value EveryBeam uses (common::c)
-
 # directions per parallel work item
 _BLOCK = 32
 
@@ -173,16 +171,8 @@ def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, fi
         sr = np.empty(nmax)
         si = np.empty(nmax)
         ds = np.empty((nb, 3))
-        dt = np.empty(3)
-        for kl in range(nb):
-            k = k0 + kl
-            for i in range(3):
-                ds[kl, i] = s0[i] - d[k, i]
-                dt[i] = t0[i] - d[k, i]
-            for lay in range(nlayout):
-                if need[lay]:
-                    _accumulate(at[lay, kl], dt, layout_pos[lay], layout_w[lay], freq,
-                                uniform, df, tau, zr, zi, sr, si)
+        _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df,
+                      at, ds, tau, zr, zi, sr, si)
         for slot in range(nslot):
             g0 = field_group[slot_fields[slot_ptr[slot]]]
             sst[:, :] = 0.0
@@ -213,16 +203,39 @@ def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, fi
                             for a in range(2):
                                 for b in range(2):
                                     extra[c, kl, a, b] += s * element_jones[g, c, k, a, b]
-            for c in range(nchan):
-                for kl in range(nb):
-                    k = k0 + kl
-                    s = sst[kl, c]
-                    for a in range(2):
-                        for b in range(2):
-                            v = s * element_jones[g0, c, k, a, b]
-                            if mixed:
-                                v += extra[c, kl, a, b]
-                            out[slot, c, k, a, b] = v
+            _write_slot(out[slot], element_jones[g0], sst, extra, mixed, k0, nb)
+
+
+@njit(inline="always")
+def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df, at, ds,
+                  tau, zr, zi, sr, si):
+    """Tile array factors ``at[layout, kl]`` of directions ``d[k0:k0 + nb]`` towards ``t0``,
+    and their offsets ``ds[kl] = s0 - d`` from the station beam-former direction."""
+    dt = np.empty(3)
+    for kl in range(nb):
+        k = k0 + kl
+        for i in range(3):
+            ds[kl, i] = s0[i] - d[k, i]
+            dt[i] = t0[i] - d[k, i]
+        for lay in range(layout_pos.shape[0]):
+            if need[lay]:
+                _accumulate(at[lay, kl], dt, layout_pos[lay], layout_w[lay], freq,
+                            uniform, df, tau, zr, zi, sr, si)
+
+
+@njit(inline="always")
+def _write_slot(out, element_jones, sst, extra, mixed, k0, nb):
+    """``out[c, k] = sst[kl, c] E[c, k] (+ extra[c, kl] for mixed element groups)``."""
+    for c in range(out.shape[0]):
+        for kl in range(nb):
+            k = k0 + kl
+            s = sst[kl, c]
+            for a in range(2):
+                for b in range(2):
+                    v = s * element_jones[c, k, a, b]
+                    if mixed:
+                        v += extra[c, kl, a, b]
+                    out[c, k, a, b] = v
 
 
 @njit(parallel=True, cache=True)

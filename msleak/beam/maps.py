@@ -1,22 +1,22 @@
-"""Beam maps for ``msleak beam``: Mueller figures of merit over a field at several hour angles.
+"""Beam maps (``msleak beam``): Mueller figures of merit over a field at several hour angles.
 
-The map grid is a square in the SIN (orthographic) projection about the phase centre:
-``l`` (towards East) and ``m`` (towards North) from ``-fov/2`` to ``+fov/2`` in direction
-cosines expressed in degrees.  At each time the phase-centre-corrected Jones matrices of
-the selected stations give auto-correlation Mueller matrices ``M_pp``
-(:func:`msleak.beam.mueller.jones_to_mueller`), averaged over the stations, with Q and U
-in one basis for the whole map by default (the phase centre's, parallel-transported); the
-maps are the
-polarized beam ``sqrt(M11^2 + M22^2)`` relative to its phase-centre value and the leakage
-``sqrt(M01^2 + M02^2) / M00``, linear and in dB.
+:func:`beam_maps` (``msleak.beam_maps``) plans the maps of an MS (stations, times,
+frequency, feeds) and :func:`mueller_maps` computes them from a beam model on a SIN grid
+about the phase centre: station-averaged, phase-centre-corrected auto-correlation Mueller
+matrices, the polarized beam ``sqrt(M11^2 + M22^2)`` relative to the phase centre and the
+leakage ``sqrt(M01^2 + M02^2) / M00`` (docs/beam.md).
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Literal, get_args
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Sequence, get_args
 
 import numpy as np
+import xarray as xr
 
 from msleak.beam.base import BeamModel
 from msleak.beam.coords import basis_rotation, transport_angle
@@ -25,14 +25,16 @@ from msleak.beam.mueller import (jones_to_mueller, leakage, polarized_beam,
 from msleak.conventions import STOKES_CONVENTION, FeedType
 from msleak.errors import InputError
 
-__all__ = ["BASES", "Basis", "sin_grid", "hour_angle_h", "times_for_hour_angles", "default_times", "beam_maps",
-           "SIDEREAL_RATIO"]
+__all__ = ["BASES", "Basis", "MAP_BEAMS", "sin_grid", "hour_angle_h", "times_for_hour_angles",
+           "default_times", "mueller_maps", "beam_maps", "SIDEREAL_RATIO"]
 
 log = logging.getLogger(__name__)
 
 Basis = Literal["tangent", "local"]
-#: Q,U reference frames of beam maps (see :func:`beam_maps`)
+#: Q,U reference frames of beam maps (see :func:`mueller_maps`)
 BASES: tuple = get_args(Basis)
+#: beam models ``msleak beam`` maps
+MAP_BEAMS = ("everybeam", "everybeam-direct", "dipole")
 BASIS_DESCRIPTIONS = {
     "tangent": "Q,U in the phase centre's (North, East) basis parallel-transported along "
                "great circles to each pixel",
@@ -101,117 +103,250 @@ def times_for_hour_angles(hour_angles_h, ra: float, position_itrf, reference_tim
     return np.array(out)
 
 
-def beam_maps(beam: BeamModel, times_mjd_s, freq_hz: float, *, fov_deg: float = 15.0,
-              npix: int = 61, feed: FeedType = "linear", stations=None, hour_angles_h=None,
-              basis: Basis = "tangent"):
-    """Polarized-beam and leakage maps at several times, as an :class:`xarray.Dataset`.
+def mueller_maps(model: BeamModel, times_mjd_s, freq_hz: float, *, fov: float = 15.0,
+                 npix: int = 61, feed: FeedType = "linear", stations=None, hour_angles=None,
+                 basis: Basis = "tangent") -> xr.Dataset:
+    """Polarized-beam and leakage maps of ``model`` at several times.
 
     Parameters
     ----------
-    beam : BeamModel
+    model : BeamModel
     times_mjd_s : (ntime,) array
         UTC, MJD seconds.
     freq_hz : float
-    fov_deg, npix : float, int
-        Map size (deg, SIN projection) and pixels per side.
+    fov, npix : float, int
+        Map width (deg, SIN projection) and pixels per side.
     feed : {'linear', 'circular'}
     stations : int array, optional
-        Stations whose Mueller matrices are averaged (default ``beam.used_stations``, the
-        antennas of the MS's rows).
-    hour_angles_h : (ntime,) array, optional
+        Stations whose Mueller matrices are averaged (default ``model.used_stations``).
+    hour_angles : (ntime,) array, optional
         Hour angles to label the maps with (h).
     basis : {'tangent', 'local'}
-        Q,U reference frame of the Mueller matrices: ``tangent``, the phase centre's
-        (North, East) basis parallel-transported to every pixel (one frame for the whole
-        map, so the pattern is the beam's even at a celestial pole); ``local``, each
-        pixel's own (North, East) basis (docs/beam.md).
+        Q,U frame: the phase centre's (North, East) basis parallel-transported to every
+        pixel (one frame for the map), or each pixel's own (docs/beam.md).
 
     Returns
     -------
     xarray.Dataset
-        ``polarized_beam``, ``leakage``, ``polarized_beam_db``, ``leakage_db``
-        (hour_angle, m, l) and ``mueller`` (hour_angle, m, l, mueller_row, mueller_col);
-        coordinates ``hour_angle`` (h), ``time`` (MJD s), ``l``, ``m`` (deg), ``ra``,
-        ``dec`` (deg, (m, l)).
+        The ``beam`` product (docs/beam.md): maps (hour_angle, m, l), ``mueller``
+        (hour_angle, m, l, 4, 4), coordinates ``hour_angle`` (h), ``time`` (MJD s),
+        ``l``, ``m``, ``ra``, ``dec`` (deg).
     """
-    import xarray as xr
-
     times = np.atleast_1d(np.asarray(times_mjd_s, dtype=float))
-    ra0, dec0 = beam.phase_centre
-    l_deg, m_deg, ra, dec = sin_grid(ra0, dec0, fov_deg, npix)
-    centre = np.unravel_index(np.argmin(l_deg[None, :] ** 2 + m_deg[:, None] ** 2), ra.shape)
     if basis not in BASES:
         raise InputError(f"unknown Q,U basis {basis!r}: use {' or '.join(BASES)}")
+    ra0, dec0 = model.phase_centre
+    l_deg, m_deg, ra, dec = sin_grid(ra0, dec0, fov, npix)
     turn = (basis_rotation(transport_angle(ra0, dec0, ra.ravel(), dec.ravel()))
             if basis == "tangent" else None)
     mueller = np.empty((times.size, npix, npix, 4, 4))
     for it, t in enumerate(times):
-        j = beam.jones([t], [freq_hz], ra.ravel(), dec.ravel(), stations=stations,
-                       centre_correction=True)[:, 0, 0]           # (nstation, ndir, 2, 2)
+        j = model.jones([t], [freq_hz], ra.ravel(), dec.ravel(), stations=stations,
+                        centre_correction=True)[:, 0, 0]           # (nstation, ndir, 2, 2)
         if turn is not None:
             j = j @ turn
         m = np.real(jones_to_mueller(j, feed=feed)).mean(axis=0)  # (ndir, 4, 4)
         mueller[it] = m.reshape(npix, npix, 4, 4)
-    pb = polarized_beam(mueller)
-    leak = leakage(mueller)
     # the phase centre itself (after correction M = I there, so pb0 = sqrt 2)
     pb0 = polarized_beam(np.real(jones_to_mueller(
-        beam.jones(times, [freq_hz], [ra0], [dec0], stations=stations,
-                   centre_correction=True)[:, :, 0, 0], feed=feed)).mean(axis=0))
+        model.jones(times, [freq_hz], [ra0], [dec0], stations=stations,
+                    centre_correction=True)[:, :, 0, 0], feed=feed)).mean(axis=0))
     if not np.all(pb0 > 0):
         raise InputError("the beam is zero at the phase centre at some of the times "
                          "(source below the horizon?); choose other hour angles")
+    if hour_angles is None:
+        hour_angles = np.full(times.size, np.nan)
+    ds = _maps_dataset(mueller, pb0, times, np.asarray(hour_angles, float), l_deg, m_deg,
+                       ra, dec)
+    centre = np.unravel_index(np.argmin(l_deg[None, :] ** 2 + m_deg[:, None] ** 2), ra.shape)
+    ds.attrs.update({
+        "beam": model.name, "freq_hz": float(freq_hz), "fov_deg": float(fov),
+        "npix": int(npix), "feed": feed, "projection": "SIN about the phase centre",
+        "qu_basis": basis, "qu_basis_description": BASIS_DESCRIPTIONS[basis],
+        "phase_centre_ra_deg": float(np.degrees(ra0)),
+        "phase_centre_dec_deg": float(np.degrees(dec0)),
+        "centre_pixel": f"{centre[0]},{centre[1]}",
+        "stations": ",".join(model.station_names[int(s)] for s in (
+            model.used_stations if stations is None else np.atleast_1d(stations))),
+        "normalisation": "J(s0)^-1 J(s) per station; Mueller matrices averaged over "
+                         "stations; dB = 10 log10",
+        "db_floor": -100.0,
+        "stokes_convention": STOKES_CONVENTION,
+    })
+    return ds
+
+
+def _maps_dataset(mueller, pb0, times, hour_angles, l_deg, m_deg, ra, dec) -> xr.Dataset:
+    """The map variables and coordinates of a beam product (attributes added by the caller)."""
+    pb = polarized_beam(mueller)
     pbi = polarized_beam_invariant(mueller)
-    pb_db = to_db(pb, pb0[:, None, None])
-    leak_db = to_db(leak)
-    if hour_angles_h is None:
-        hour_angles_h = np.full(times.size, np.nan)
+    leak = leakage(mueller)
+    norm = pb0[:, None, None]
     dims = ("hour_angle", "m", "l")
-    ds = xr.Dataset(
+    db = {"units": "dB", "definition": "10 log10"}
+    return xr.Dataset(
         {
-            "polarized_beam": (dims, pb / pb0[:, None, None], {
+            "polarized_beam": (dims, pb / norm, {
                 "long_name": "polarized beam sqrt(M11^2+M22^2) relative to the phase centre",
                 "units": "1"}),
-            "polarized_beam_invariant": (dims, pbi / pb0[:, None, None], {
+            "polarized_beam_invariant": (dims, pbi / norm, {
                 "long_name": "sqrt(M11^2+M12^2+M21^2+M22^2) relative to the phase centre "
                              "(independent of the Q,U reference frame)", "units": "1"}),
-            "polarized_beam_invariant_db": (dims, to_db(pbi, pb0[:, None, None]), {
-                "units": "dB", "definition": "10 log10"}),
+            "polarized_beam_invariant_db": (dims, to_db(pbi, norm), db),
             "leakage": (dims, leak, {"long_name": "Q,U -> I leakage sqrt(M01^2+M02^2)/M00",
                                      "units": "1"}),
-            "polarized_beam_db": (dims, pb_db, {"units": "dB", "definition": "10 log10"}),
-            "leakage_db": (dims, leak_db, {"units": "dB", "definition": "10 log10"}),
+            "polarized_beam_db": (dims, to_db(pb, norm), db),
+            "leakage_db": (dims, to_db(leak), db),
             "mueller": (dims + ("mueller_row", "mueller_col"), mueller, {
                 "long_name": "station-averaged auto-correlation Mueller matrix "
                              "(phase-centre corrected), Stokes I,Q,U,V order",
                 "units": "1"}),
         },
         coords={
-            "hour_angle": ("hour_angle", np.asarray(hour_angles_h, float), {"units": "h"}),
+            "hour_angle": ("hour_angle", hour_angles, {"units": "h"}),
             "time": ("hour_angle", times, {"units": "s", "long_name": "UTC, MJD seconds"}),
             "l": ("l", l_deg, {"units": "deg", "long_name": "direction cosine towards East"}),
             "m": ("m", m_deg, {"units": "deg", "long_name": "direction cosine towards North"}),
             "ra": (("m", "l"), np.degrees(ra), {"units": "deg"}),
             "dec": (("m", "l"), np.degrees(dec), {"units": "deg"}),
         },
-        attrs={
-            "beam": beam.name,
-            "freq_hz": float(freq_hz),
-            "fov_deg": float(fov_deg),
-            "npix": int(npix),
-            "feed": feed,
-            "projection": "SIN about the phase centre",
-            "qu_basis": basis,
-            "qu_basis_description": BASIS_DESCRIPTIONS[basis],
-            "phase_centre_ra_deg": float(np.degrees(ra0)),
-            "phase_centre_dec_deg": float(np.degrees(dec0)),
-            "centre_pixel": f"{centre[0]},{centre[1]}",
-            "stations": ",".join(beam.station_names[int(s)] for s in (
-                beam.used_stations if stations is None else np.atleast_1d(stations))),
-            "normalisation": "J(s0)^-1 J(s) per station; Mueller matrices averaged over "
-                             "stations; dB = 10 log10",
-            "db_floor": -100.0,
-            "stokes_convention": STOKES_CONVENTION,
-        },
     )
+
+
+def beam_maps(ms: str | os.PathLike, *, fov: float = 15.0, npix: int = 61,
+              hour_angles: Sequence[float] | None = None, freq: float | None = None,
+              beam: str = "everybeam", station: str | None = None,
+              diameter: float | None = None, invariant: bool = False,
+              basis: Basis = "tangent", field: int | str | None = None,
+              output: str | os.PathLike | None = None, overwrite: bool = False) -> xr.Dataset:
+    """Polarized-beam and leakage maps of the station beams of ``ms`` (``msleak beam``).
+
+    Parameters
+    ----------
+    ms : path
+        Measurement Set.
+    fov, npix : float, int
+        Map width (deg, SIN projection about the phase centre) and pixels per side.
+    hour_angles : sequence of float, optional
+        Hour angles (h) of the phase centre, at the times nearest the middle of the
+        observation; default 5 times spread over the rows of the field.
+    freq : float, optional
+        Hz; default the middle channel of the first spectral window.
+    beam : {'everybeam', 'everybeam-direct', 'dipole'}
+    station : str, optional
+        One ANTENNA name; default the Mueller matrices of the field's stations averaged.
+    diameter : float, optional
+        Dipole beam: station diameter (m); default ANTENNA::DISH_DIAMETER.
+    invariant : bool
+        Recorded for the figure (attribute ``invariant``): plot the Q,U-frame-invariant
+        polarized beam; the product holds both.
+    basis : {'tangent', 'local'}
+        Q,U frame of the maps (docs/beam.md).
+    field : int or str, optional
+        FIELD id or name giving the phase centre, pointing and rows; default 0.
+    output : path, optional
+        Also write the ``beam`` product there (refused if it exists, unless ``overwrite``).
+
+    Returns
+    -------
+    xarray.Dataset
+        The ``beam`` product: maps (hour_angle, m, l), ``mueller`` (hour_angle, m, l, 4, 4)
+        (docs/beam.md).
+    """
+    from msleak.beam import load_beam
+    from msleak.io.ms import check_ms, resolve_field
+    from msleak.io.products import call_record, save_product, stamp
+
+    command = call_record(beam_maps, dict(locals()))
+    _check_options(fov, npix, freq, beam, diameter, basis)
+    if output is not None and Path(output).exists() and not overwrite:
+        raise InputError(f"{output} exists; choose another name or pass --overwrite")
+    ms = check_ms(ms)
+    field_id = 0 if field is None else resolve_field(ms, field)
+    plan = _plan(ms, field_id, station, freq)
+    options = {"diameter_m": diameter} if diameter is not None else {}
+    model = load_beam(beam, ms, field_id=field_id, stations=plan.stations, **options)
+    times, has = _map_times(ms, field_id, hour_angles, model.phase_centre[0], plan.position)
+    log.info("beam maps of %s (%s) at %.3f MHz, hour angles %s h", ms, model.name,
+             plan.freq / 1e6, ", ".join(f"{h:+.2f}" for h in has))
+    ds = mueller_maps(model, times, plan.freq, fov=fov, npix=npix, feed=plan.feed,
+                      hour_angles=has, basis=basis)
+    ds.attrs.update(source=str(ms), field_id=field_id, field_name=plan.field_name,
+                    invariant=int(bool(invariant)),
+                    )
+    ds = stamp(ds, command, _ms_history(ms))
+    if output is not None:
+        save_product(ds, output, "beam", overwrite=overwrite)
     return ds
+
+
+def _check_options(fov, npix, freq, beam, diameter, basis) -> None:
+    """The option errors of ``msleak beam``, before any work."""
+    if not 0 < fov < 180:
+        raise InputError(f"--fov must be between 0 and 180 degrees, got {fov}")
+    if int(npix) != npix or not 2 <= npix <= 2049:
+        raise InputError(f"--npix must be an integer between 2 and 2049, got {npix}")
+    if freq is not None and not freq > 0:
+        raise InputError(f"--freq must be positive (Hz), got {freq}")
+    if beam not in MAP_BEAMS:
+        raise InputError(f"unknown --beam {beam!r}: use one of {', '.join(MAP_BEAMS)}")
+    if diameter is not None and beam != "dipole":
+        raise InputError("--diameter only applies to --beam dipole")
+    if basis not in BASES:
+        raise InputError(f"unknown Q,U basis {basis!r}: use {' or '.join(BASES)}")
+
+
+@dataclass(frozen=True)
+class _Plan:
+    stations: np.ndarray      # ANTENNA rows averaged
+    position: np.ndarray      # ITRF array centre (m) of the field's stations
+    freq: float               # Hz
+    feed: str
+    field_name: str
+
+
+def _plan(ms: Path, field_id: int, station: str | None, freq: float | None) -> _Plan:
+    """Stations, array centre, frequency and feed type of the maps of FIELD ``field_id``."""
+    from msleak.conventions import feed_type_from_corr_types
+    from msleak.io.ms import (read_antennas, read_corr_types, read_data_descriptions,
+                              read_fields, read_spectral_windows, read_used_antennas)
+
+    antennas = read_antennas(ms)
+    in_rows = read_used_antennas(ms, field_id=field_id)
+    used = in_rows
+    if station is not None:
+        names = [antennas.names[i] for i in in_rows]
+        if station not in names:
+            raise InputError(
+                f"--station {station!r} is not an antenna of the rows of field {field_id} "
+                f"of {ms} (they are {', '.join(names[:6])}{', ...' if len(names) > 6 else ''})")
+        used = in_rows[[names.index(station)]]
+    ddid = read_data_descriptions(ms)
+    spw, pol = ddid[0] if ddid else (0, 0)
+    if freq is None:
+        channels = read_spectral_windows(ms)[spw].freq
+        freq = float(channels[channels.size // 2])
+    return _Plan(stations=used, position=antennas.positions[in_rows].mean(axis=0),
+                 freq=float(freq), feed=feed_type_from_corr_types(read_corr_types(ms)[pol]),
+                 field_name=read_fields(ms)[field_id].name)
+
+
+def _map_times(ms: Path, field_id: int, hour_angles, ra0: float, position):
+    """(times in MJD s, hour angles in h) of the maps."""
+    from msleak.io.ms import read_times
+
+    times = read_times(ms, field_id=field_id)
+    if hour_angles is None or len(hour_angles) == 0:
+        times = default_times(times)
+        return times, hour_angle_h(times, ra0, position)
+    if times.size == 0:
+        raise InputError(f"{ms} has no rows, so no date for --hour-angles")
+    has = np.asarray(hour_angles, dtype=float)
+    return times_for_hour_angles(has, ra0, position, float(np.median(times))), has
+
+
+def _ms_history(ms: Path) -> list[str]:
+    """The HISTORY rows of ``ms``, one line each, prefixed with the MS."""
+    from msleak.io.ms import read_history
+
+    return [f"{Path(ms).resolve()} HISTORY {line}" for line in read_history(ms)]

@@ -124,7 +124,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     root.addHandler(handler)
     root.setLevel(level)
     # the step lines of multi-step commands (msleak paper) are progress the user needs
-    logging.getLogger("msleak.steps").setLevel(level if quiet else min(level, logging.INFO))
+    logging.getLogger("msleak.study.steps").setLevel(level if quiet else min(level, logging.INFO))
     _route_warnings()
     log.debug("msleak %s from %s, Python %s", __version__,
               Path(__file__).resolve().parents[1], sys.version.split()[0])

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
+
+from msleak.errors import MsleakError
+from msleak.study.config import StudyConfig
+from msleak.study.pipeline import run_study
 
 
 def _observed(ctx, param, values):
@@ -28,18 +34,18 @@ def _observed(ctx, param, values):
 @click.option("--quick", is_flag=True, help="Reduced size (18 HBA fields, 2 h at 600 s, "
               "both fields, all three fields of view): about 3 minutes on 2 cores.")
 @click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
-              help="Seed of the sky model (the first realisation).")
+              metavar="N", help="Seed of the sky model (the first realisation).")
 @click.option("--seeds", type=click.IntRange(1, None), default=1, show_default=True,
-              help="Sky realisations (seeds SEED, SEED+1, ...) through the same MSs and "
-              "beams, predicted and gridded in one pass per field; the per-field estimate "
-              "is then their mean +- standard deviation.")
+              metavar="N", help="Sky realisations (seeds SEED, SEED+1, ...) through the same "
+              "MSs and beams, predicted and gridded in one pass per field; the per-field "
+              "estimate is then their mean +- standard deviation.")
 @click.option("--field", "fields", type=click.Choice(["ncp", "3c196"]), multiple=True,
               help="Only these fields (repeatable) [default: both].")
 @click.option("--beam", type=click.Choice(["everybeam", "everybeam-direct", "dipole"]),
               default="everybeam", show_default=True, help="Beam model for predict and maps.")
 @click.option("--observed", multiple=True, callback=_observed, metavar="FIELD=Q.fits,U.fits",
-              help="Observed Q and U image cubes of a field: adds its polarized PS and the "
-              "expected leakage (docs/science.md section 6-7). Repeatable.")
+              help="Observed Q and U image cubes of a field, by file name: adds its polarized "
+              "PS and the expected leakage (docs/science.md section 6-7). Repeatable.")
 @click.option("--stations", default=None, metavar="PATTERN",
               help="Override the stations (e.g. 'CS00[1-7]HBA*') [48 HBA core fields; "
               "--quick: 18].")
@@ -48,28 +54,26 @@ def _observed(ctx, param, values):
               "--quick: 2 h].")
 @click.option("--interval", "interval_s", type=float, default=None, metavar="SEC",
               help="Override the integration time [120 s; --quick: 600 s].")
-@click.option("--nchan", type=click.IntRange(8, None), default=None,
+@click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
               help="Override the number of channels of the MSs and the sky [50].")
-@click.option("--force", is_flag=True, help="Redo every step, even those up to date.")
+@click.option("--overwrite", is_flag=True,
+              help="Rerun every step, replacing its outputs, even those up to date "
+              "(without it an existing OUTDIR resumes).")
 @click.pass_context
 def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, duration_h,
-          interval_s, nchan, force):
+          interval_s, nchan, overwrite):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
 
-    Resumable: a rerun skips finished steps whose inputs are unchanged.
+    Resumable: a rerun skips finished steps whose inputs are unchanged; --overwrite
+    reruns them all.
 
     \b
     Examples:
       msleak paper study/ --quick
       msleak paper study/ --observed ncp=ncp_Q.fits,ncp_U.fits
     """
-    from pathlib import Path
-
-    from msleak.errors import MsleakError
-    from msleak.pipeline import StudyConfig, run_study
-
     root = ctx.find_root().command
 
     def invoke(args):
@@ -83,5 +87,5 @@ def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, dur
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
                       interval_s=interval_s, nchan=nchan)
-    report = run_study(cfg, invoke, force=force)
+    report = run_study(cfg, invoke, overwrite=overwrite)
     click.echo(f"report: {report}")

@@ -2,40 +2,14 @@
 
 from __future__ import annotations
 
-import re
+import sys
 
 import click
 
+from msleak.cli._common import MemorySize
 from msleak.parallel.options import parallel_options
 
-__all__ = ["predict", "parse_memory"]
-
-_UNITS = {"": 1, "B": 1, "K": 1024, "KB": 1024, "KIB": 1024, "M": 1024**2, "MB": 1024**2,
-          "MIB": 1024**2, "G": 1024**3, "GB": 1024**3, "GIB": 1024**3, "T": 1024**4,
-          "TB": 1024**4, "TIB": 1024**4}
-
-
-def parse_memory(text: str) -> int:
-    """``"2GB"``, ``"512M"``, ``"1.5G"`` or a number of bytes -> bytes (binary units)."""
-    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(text))
-    if not match or match.group(2).upper() not in _UNITS:
-        raise click.BadParameter(f"{text!r} is not a memory size (e.g. 2GB, 512MB, 4e9)")
-    value = float(match.group(1)) * _UNITS[match.group(2).upper()]
-    if value <= 0:
-        raise click.BadParameter("the memory limit must be positive")
-    return int(value)
-
-
-class _Memory(click.ParamType):
-    name = "SIZE"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, int):
-            return value
-        try:
-            return parse_memory(value)
-        except click.BadParameter as err:
-            self.fail(err.message, param, ctx)
+__all__ = ["predict"]
 
 
 def _split(_ctx, _param, value):
@@ -51,43 +25,44 @@ def _split(_ctx, _param, value):
                    "at its channel; Jy/pixel or K) or a makesourcedb text file (Jy). "
                    "Repeat it to predict several skies in one pass, each into the --column "
                    "given in the same position.")
-@click.option("--fov", "fov_deg", type=float, multiple=True,
-              help="Keep the central FOV x FOV degrees of the sky (default: all of it); "
+@click.option("--fov", "fov", type=float, multiple=True, metavar="DEG",
+              help="Keep the central DEG x DEG degrees of the sky (default: all of it); "
                    "once for every sky, or once per --sky in the same order.")
 @click.option("--beam", type=click.Choice(["everybeam", "everybeam-direct", "dipole", "none"]),
               default="everybeam", show_default=True,
               help="Station beam: fast LOFAR EveryBeam model, EveryBeam called directly, an "
                    "analytic dipole, or no beam.")
-@click.option("--diameter", "diameter_m", type=float, default=None, metavar="M",
+@click.option("--diameter", "diameter", type=float, default=None, metavar="M",
               help="With --beam dipole: station diameter (m) of its Airy station factor "
                    "[default: ANTENNA::DISH_DIAMETER].")
-@click.option("--column", "column", multiple=True,
+@click.option("--column", "column", multiple=True, metavar="NAME",
               help="Column to write (created like DATA, tiled storage, if missing) "
                    "[default: MODEL_DATA]; with several --sky, one per --sky, all different.")
-@click.option("--no-centre-correction", "no_centre", is_flag=True,
-              help="Keep the full beam; by default the beam at the phase centre is removed, "
-                   "V' = J_p(s0)^-1 V J_q(s0)^-H, leaving the differential beam.")
+@click.option("--centre-correction/--no-centre-correction", "centre_correction", default=True,
+              show_default=True,
+              help="Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H, "
+                   "leaving the differential beam; --no-centre-correction keeps the full beam.")
 @click.option("--interpolate-frequency", is_flag=True,
               help="Interpolate the sky cube linearly to the MS channels instead of "
                    "requiring matching channels (relative tolerance 1e-6).")
 @click.option("--double", is_flag=True,
               help="complex128 arithmetic (default complex64; phases always in float64).")
-@click.option("--memory-limit", type=_Memory(), default="2GB", show_default=True,
+@click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
               help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
                    "computed at the same time (per worker process with a scheduler address).")
 @click.option("--overwrite-data", is_flag=True,
               help="Allow --column DATA (overwrites the observed visibilities).")
-@click.option("--field", "fields", callback=_split, default=None,
-              help="FIELD ids or names, comma separated (default: all).")
-@click.option("--spw", "spws", callback=_split, default=None,
-              help="SPECTRAL_WINDOW ids, comma separated (default: all).")
+@click.option("--field", "field", callback=_split, default=None, metavar="ID|NAME",
+              help="FIELD id or name; several comma separated (default: all).")
+@click.option("--spw", "spw", callback=_split, default=None, metavar="ID",
+              help="SPECTRAL_WINDOW id; several comma separated (default: all).")
 @click.option("--restart", is_flag=True,
               help="Start over instead of resuming an interrupted run with the same settings.")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
-def predict(ms, sky, fov_deg, beam, diameter_m, column, no_centre, interpolate_frequency,
-            double, memory_limit, overwrite_data, fields, spws, restart, progress, scheduler,
+def predict(ms, sky, fov, beam, diameter, column, centre_correction, interpolate_frequency,
+            double, memory_limit, overwrite_data, field, spw, restart, progress, scheduler,
             workers):
     """Predict the visibilities of SKY through the station beams into MS (one or more
     Measurement Sets, e.g. one per subband; each gets the same skies).
@@ -117,22 +92,14 @@ def predict(ms, sky, fov_deg, beam, diameter_m, column, no_centre, interpolate_f
       msleak predict obs.ms --sky s1.fits --column M1 --sky s2.fits --column M2 --fov 4
       msleak predict SB*.ms --sky sky.fits --scheduler tcp://head:8786
     """
-    from msleak.predict.engine import predict_many
+    from msleak.predict.engine import predict as run
 
-    if diameter_m is not None and beam != "dipole":
-        raise click.BadParameter("only applies to --beam dipole", param_hint="--diameter")
-    if diameter_m is not None and not diameter_m > 0:
-        raise click.BadParameter("must be positive (m)", param_hint="--diameter")
-    if not column:
-        column = ["MODEL_DATA"] if len(sky) == 1 else []
-    results = predict_many(ms, list(sky), fov_deg=list(fov_deg) or None, beam=beam,
-                           column=list(column),
-                           diameter_m=diameter_m,
-                           centre_correction=not no_centre,
-                           interpolate_frequency=interpolate_frequency, double=double,
-                           memory_limit=memory_limit, overwrite_data=overwrite_data,
-                           fields=fields, spws=spws, restart=restart, progress=progress,
-                           scheduler=scheduler, workers=workers)
+    results = run(list(ms), list(sky), column=list(column) or ["MODEL_DATA"] * (len(sky) == 1),
+                  fov=list(fov) or None, beam=beam, diameter=diameter,
+                  centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,
+                  double=double, field=field, spw=spw, memory_limit=memory_limit,
+                  overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,
+                  workers=workers, progress=sys.stderr.isatty() if progress is None else progress)
     for result in results:
         if result.skipped:
             click.echo(f"{result.ms}: {result.column} is complete from an identical run; "

@@ -1,4 +1,6 @@
-"""FITS sky cubes: write msleak's cubes, read any cube with celestial + FREQ (+ STOKES) axes.
+"""FITS sky cubes: write msleak's cubes, read any cube with celestial + FREQ (+ STOKES)
+axes, and convert between the internal :class:`~msleak.sky.cube.SkyCube` and the sky
+Dataset of the Python API (docs/sky.md, docs/products.md).
 
 Written layout (primary HDU, float32 by default)::
 
@@ -10,31 +12,37 @@ Written layout (primary HDU, float32 by default)::
 
 plus the generator's parameters as ``HIERARCH MSLEAK ...`` cards (``MSLEAK POLFRAME =
 'LOCAL-NORTH'``: Q and U are referred to the local celestial North of each pixel, the
-FITS convention) and a HISTORY card with the command line. Cubes of an older msleak
-generator (``MSLEAK GENERATR`` without ``MSLEAK POLFRAME``) held Q and U referred to the
-image +y axis; :func:`read_cube` turns them to the local North, with a warning. Reading accepts any axis order, any celestial projection, CUNIT3 in any
-frequency unit, degenerate extra axes, and a missing STOKES axis (then the cube is taken
-to be the Stokes parameter given by ``stokes``, default I).
+FITS convention) and a HISTORY card with the command line. Reading accepts any axis
+order, any celestial projection, CUNIT3 in any frequency unit, degenerate extra axes, and
+a missing STOKES axis (then the cube is taken to be the Stokes parameter given by
+``stokes``, default I).
 """
 
 from __future__ import annotations
 
-import logging
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
+import xarray as xr
+from astropy.io import fits
+from astropy.wcs import WCS, FITSFixedWarning
 
 from msleak import __version__
 from msleak.errors import InputError
-from msleak.sky.cube import (POLFRAME, STOKES_CODES, SkyCube, rotate_polarization,
-                             y_axis_position_angle)
+from msleak.sky.cube import STOKES_CODES, SkyCube
 
-__all__ = ["write_cube", "read_cube", "check_complete"]
+__all__ = ["write_cube", "read_cube", "check_complete", "is_fits", "dataset_from_cube",
+           "cube_from_dataset"]
 
 _CODE_TO_STOKES = {v: k for k, v in STOKES_CODES.items()}
 
-log = logging.getLogger(__name__)
+
+def is_fits(path: str | os.PathLike) -> bool:
+    """Whether the file starts like a FITS file (``SIMPLE  =``)."""
+    with open(path, "rb") as fh:
+        return fh.read(9) == b"SIMPLE  ="
 
 
 def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = False,
@@ -47,8 +55,6 @@ def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = Fals
         If the file exists and ``overwrite`` is false, if the channels are not evenly
         spaced, or if the Stokes labels are not consecutive FITS codes.
     """
-    from astropy.io import fits
-
     path = Path(path)
     if path.exists() and not overwrite:
         raise InputError(f"{path} exists; choose another name or pass --overwrite")
@@ -63,12 +69,9 @@ def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = Fals
     codes = [STOKES_CODES[s] for s in cube.stokes]
     if any(b - a != 1 for a, b in zip(codes, codes[1:])):
         raise InputError(f"Stokes {cube.stokes} are not consecutive FITS codes")
-    header = cube.wcs.to_header()
-    for key in ("WCSAXES",):
-        header.remove(key, ignore_missing=True)
     hdu = fits.PrimaryHDU(data=np.asarray(cube.data, dtype=dtype))
     hdr = hdu.header
-    hdr.update(header)
+    hdr.update(_wcs_cards(cube))
     hdr["CTYPE3"], hdr["CRPIX3"], hdr["CRVAL3"], hdr["CDELT3"], hdr["CUNIT3"] = (
         "FREQ", 1.0, float(freq[0]), dfreq, "Hz")
     hdr["CTYPE4"], hdr["CRPIX4"], hdr["CRVAL4"], hdr["CDELT4"] = (
@@ -77,16 +80,7 @@ def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = Fals
     hdr["BUNIT"] = "K" if cube.units == "K" else "JY/PIXEL"
     hdr["BTYPE"] = "Intensity"
     hdr["ORIGIN"] = f"msleak {__version__}"
-    for key, value in cube.meta.items():
-        if isinstance(value, (bool, np.bool_)):
-            value = bool(value)
-        elif isinstance(value, (np.integer,)):
-            value = int(value)
-        elif isinstance(value, (np.floating,)):
-            value = float(value)
-        elif not isinstance(value, (int, float, str)):
-            value = str(value)
-        hdr[f"HIERARCH MSLEAK {key}"] = value
+    hdr.extend(_meta_cards(cube))
     if history:
         for start in range(0, len(history), 70):
             hdr.add_history(history[start:start + 70])
@@ -95,6 +89,30 @@ def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = Fals
     hdu.writeto(tmp, overwrite=True)
     os.replace(tmp, path)
     return path
+
+
+def _wcs_cards(cube: SkyCube) -> fits.Header:
+    """The celestial WCS cards of a cube."""
+    header = cube.wcs.to_header()
+    for key in ("WCSAXES", "SPECSYS"):
+        header.remove(key, ignore_missing=True)
+    return header
+
+
+def _meta_cards(cube: SkyCube) -> fits.Header:
+    """``cube.meta`` as ``HIERARCH MSLEAK`` cards."""
+    header = fits.Header()
+    for key, value in cube.meta.items():
+        if isinstance(value, (bool, np.bool_)):
+            value = bool(value)
+        elif isinstance(value, np.integer):
+            value = int(value)
+        elif isinstance(value, np.floating):
+            value = float(value)
+        elif not isinstance(value, (int, float, str)):
+            value = str(value)
+        header[f"HIERARCH MSLEAK {key}"] = value
+    return header
 
 
 def _units(bunit: str | None) -> tuple[str, float]:
@@ -150,11 +168,40 @@ def read_cube(path: str | os.PathLike, *, stokes: str = "I") -> SkyCube:
         Not a FITS file, no celestial or FREQ axis, extra non-degenerate axes, NaN or
         infinite values, or an unsupported BUNIT.
     """
-    from astropy.io import fits
-    from astropy.wcs import WCS, FITSFixedWarning
-    import warnings
-
     path = Path(path)
+    header, data = _read_image(path)
+    wcs = _header_wcs(header, str(path))
+    shape_fits = data.shape[::-1]
+    ilon, ilat, ispec, istokes = _cube_axes(path, wcs, shape_fits)
+    _check_finite(str(path), data)
+    freq = _axis_world(wcs, shape_fits, ispec)
+    if not np.all(freq > 0):
+        raise InputError(f"{path} has non-positive frequencies on its FREQ axis")
+    if istokes is None:
+        if stokes not in STOKES_CODES:
+            raise InputError(f"unknown Stokes parameter {stokes!r}")
+        labels = (stokes,)
+    else:
+        labels = _stokes_labels(path, _axis_world(wcs, shape_fits, istokes))
+    # numpy axis of FITS axis i is naxis - 1 - i; bring to (stokes, freq, lat, lon)
+    naxis = wcs.naxis
+    order = [naxis - 1 - i for i in (ispec, ilat, ilon)]
+    if istokes is not None:
+        order.insert(0, naxis - 1 - istokes)
+    rest = [a for a in range(naxis) if a not in order]
+    data = np.transpose(data, rest + order).reshape(
+        (len(labels), shape_fits[ispec], shape_fits[ilat], shape_fits[ilon]))
+    units, scale = _units(header.get("BUNIT"))
+    cel = wcs.celestial
+    if cel.wcs.lng != 0:
+        cel = cel.swapaxes(0, 1)
+    cel.wcs.set()
+    return SkyCube(data=np.ascontiguousarray(data * scale if scale != 1.0 else data),
+                   freq=freq, stokes=labels, wcs=cel, units=units, meta=_msleak_meta(header))
+
+
+def _read_image(path: Path) -> tuple[fits.Header, np.ndarray]:
+    """Header and float64 data of the first >= 3-D image HDU of a complete FITS file."""
     if not path.exists():
         raise InputError(f"FITS cube {path} does not exist")
     try:
@@ -168,84 +215,120 @@ def read_cube(path: str | os.PathLike, *, stokes: str = "I") -> SkyCube:
                     and getattr(h, "is_image", False) and h.data.ndim >= 3), None)
         if hdu is None:
             raise InputError(f"{path} has no image with at least 3 axes (RA, Dec, FREQ)")
-        header = hdu.header
-        data = np.asarray(hdu.data, dtype=float)
+        return hdu.header, np.asarray(hdu.data, dtype=float)
+
+
+def _header_wcs(header: fits.Header, name: str) -> WCS:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FITSFixedWarning)
         try:
-            wcs = WCS(header)
+            return WCS(header)
         except Exception as err:  # noqa: BLE001 - astropy/wcslib raise many types
-            raise InputError(f"{path}: invalid WCS in the FITS header "
+            raise InputError(f"{name}: invalid WCS in the FITS header "
                              f"({' '.join(str(err).split())[:160]})") from None
-    naxis = wcs.naxis
+
+
+def _cube_axes(path: Path, wcs: WCS, shape_fits: tuple[int, ...]
+               ) -> tuple[int, int, int, int | None]:
+    """FITS axis indices (0-based) of longitude, latitude, FREQ and STOKES (or None)."""
     if not wcs.has_celestial:
         raise InputError(f"{path} has no celestial (RA/Dec) axes")
     ctypes = [str(c).upper() for c in wcs.wcs.ctype]
     spec = [i for i, c in enumerate(ctypes) if c.startswith("FREQ")]
     if not spec:
         raise InputError(f"{path} has no FREQ axis (axes: {', '.join(ctypes)})")
-    ispec = spec[0]
     istokes = next((i for i, c in enumerate(ctypes) if c == "STOKES"), None)
-    ilon, ilat = wcs.wcs.lng, wcs.wcs.lat
-    shape_fits = data.shape[::-1]  # FITS axis order
-    used = {ilon, ilat, ispec} | ({istokes} if istokes is not None else set())
-    for i in range(naxis):
-        if i not in used and shape_fits[i] != 1:
+    axes = (wcs.wcs.lng, wcs.wcs.lat, spec[0], istokes)
+    for i in range(wcs.naxis):
+        if i not in axes and shape_fits[i] != 1:
             raise InputError(f"{path} has an extra axis {ctypes[i]} of length {shape_fits[i]}")
+    return axes
+
+
+def _axis_world(wcs: WCS, shape_fits: tuple[int, ...], axis: int) -> np.ndarray:
+    """World values (SI: wcslib converts spectral units) along one FITS axis."""
+    pix = np.tile(wcs.wcs.crpix - 1, (shape_fits[axis], 1))
+    pix[:, axis] = np.arange(shape_fits[axis])
+    return wcs.wcs_pix2world(pix, 0)[:, axis].astype(float)
+
+
+def _stokes_labels(path: Path, codes: np.ndarray) -> tuple[str, ...]:
+    codes = np.rint(codes).astype(int)
+    try:
+        return tuple(_CODE_TO_STOKES[int(c)] for c in codes)
+    except KeyError:
+        raise InputError(f"{path} has STOKES codes {list(codes)}; only I, Q, U, V "
+                         "(1..4) are supported") from None
+
+
+def _check_finite(name: str, data: np.ndarray) -> None:
     bad = ~np.isfinite(data)
     if np.any(bad):
-        raise InputError(f"{path} has {int(bad.sum())} NaN or infinite values; blank pixels "
+        raise InputError(f"{name} has {int(bad.sum())} NaN or infinite values; blank pixels "
                          "are not allowed in a sky cube")
-    # frequencies (Hz: wcslib converts spectral units to SI)
-    pix = np.zeros((shape_fits[ispec], naxis))
-    pix[:, ispec] = np.arange(shape_fits[ispec])
-    for i in range(naxis):
-        if i != ispec:
-            pix[:, i] = wcs.wcs.crpix[i] - 1
-    world = wcs.wcs_pix2world(pix, 0)
-    freq = world[:, ispec].astype(float)
-    if not np.all(freq > 0):
-        raise InputError(f"{path} has non-positive frequencies on its FREQ axis")
-    if istokes is not None:
-        pix = np.zeros((shape_fits[istokes], naxis))
-        pix[:, istokes] = np.arange(shape_fits[istokes])
-        codes = np.rint(wcs.wcs_pix2world(pix, 0)[:, istokes]).astype(int)
-        try:
-            labels = tuple(_CODE_TO_STOKES[int(c)] for c in codes)
-        except KeyError:
-            raise InputError(f"{path} has STOKES codes {list(codes)}; only I, Q, U, V "
-                             "(1..4) are supported") from None
-    else:
-        if stokes not in STOKES_CODES:
-            raise InputError(f"unknown Stokes parameter {stokes!r}")
-        labels = (stokes,)
-    # numpy axis of FITS axis i is naxis - 1 - i; bring to (stokes, freq, lat, lon)
-    order = []
-    order.append(naxis - 1 - istokes if istokes is not None else None)
-    order += [naxis - 1 - ispec, naxis - 1 - ilat, naxis - 1 - ilon]
-    rest = [a for a in range(naxis) if a not in order]
-    if istokes is None:
-        data = np.transpose(data, rest + order[1:])
-        data = data.reshape(data.shape[-3:])[None]
-    else:
-        data = np.transpose(data, rest + order).reshape(
-            (len(labels), shape_fits[ispec], shape_fits[ilat], shape_fits[ilon]))
-    units, scale = _units(header.get("BUNIT"))
-    if scale != 1.0:
-        data = data * scale
-    cel = wcs.celestial
-    if cel.wcs.lng != 0:
-        cel = cel.swapaxes(0, 1)
-    cel.wcs.set()
-    meta = {k[len("MSLEAK "):]: header[k] for k in header
+
+
+def _msleak_meta(header: fits.Header) -> dict:
+    return {k[len("MSLEAK "):]: header[k] for k in header
             if isinstance(k, str) and k.startswith("MSLEAK ")}
-    cube = SkyCube(data=np.ascontiguousarray(data), freq=freq, stokes=labels, wcs=cel,
-                   units=units, meta=meta)
-    if ("GENERATR" in meta and str(meta["GENERATR"]).startswith("msleak.sky.foreground")
-            and "POLFRAME" not in meta and {"Q", "U"} & set(labels)):
-        log.warning("%s was made by an older msleak with Q, U referred to the image +y "
-                    "axis; turning them to the local North of each pixel (FITS convention)",
-                    path)
-        cube = rotate_polarization(cube, y_axis_position_angle(cel, cube.npix))
-        cube.meta["POLFRAME"] = POLFRAME
-    return cube
+
+
+def dataset_from_cube(cube: SkyCube) -> xr.Dataset:
+    """The sky Dataset of a cube: what its FITS file holds (docs/products.md, "sky").
+
+    Returns
+    -------
+    Dataset with one float32 variable per Stokes parameter of the cube, dims
+    (freq, y, x), in ``units`` (K or Jy/pixel); coordinates ``freq`` (Hz), ``x``, ``y``
+    (projection-plane offsets of the pixel centres from the reference pixel, deg, along
+    the FITS axes: for msleak's SIN cubes x = l, east positive, and y = m), ``ra``, ``dec``
+    (y, x) (deg, J2000, NaN outside the projection); attributes ``units`` and
+    ``fits_header`` (the celestial WCS and ``HIERARCH MSLEAK`` cards, as text).
+    """
+    ny, nx = cube.npix
+    scale, crpix = cube.wcs.pixel_scale_matrix, cube.wcs.wcs.crpix
+    yy, xx = np.mgrid[0:ny, 0:nx].astype(float)
+    ra, dec = cube.wcs.all_pix2world(xx, yy, 0)
+    header = _wcs_cards(cube)
+    header.extend(_meta_cards(cube))
+    dims = ("freq", "y", "x")
+    data_vars = {s: (dims, np.asarray(cube.data[k], dtype=np.float32),
+                     {"units": cube.units, "long_name": f"Stokes {s}"})
+                 for k, s in enumerate(cube.stokes)}
+    coords = {
+        "freq": ("freq", np.asarray(cube.freq, dtype=float), {"units": "Hz"}),
+        "y": ("y", (np.arange(ny) - (crpix[1] - 1)) * scale[1, 1],
+              {"units": "deg", "long_name": "offset along the FITS y axis"}),
+        "x": ("x", (np.arange(nx) - (crpix[0] - 1)) * scale[0, 0],
+              {"units": "deg", "long_name": "offset along the FITS x axis"}),
+        "ra": (("y", "x"), np.mod(ra, 360.0), {"units": "deg"}),
+        "dec": (("y", "x"), dec, {"units": "deg"}),
+    }
+    return xr.Dataset(data_vars, coords=coords, attrs={
+        "units": cube.units, "fits_header": header.tostring(sep="\n")})
+
+
+def cube_from_dataset(ds: xr.Dataset) -> SkyCube:
+    """The :class:`SkyCube` of a sky Dataset (:func:`dataset_from_cube`), float64 data.
+
+    Raises
+    ------
+    InputError
+        No ``fits_header`` attribute or invalid WCS in it, no Stokes variable, or NaN or
+        infinite values.
+    """
+    if "fits_header" not in ds.attrs:
+        raise InputError("the sky Dataset has no fits_header attribute; make it with "
+                         "msleak.make_sky")
+    labels = tuple(s for s in STOKES_CODES if s in ds.data_vars)
+    if not labels:
+        raise InputError("the sky Dataset has no Stokes variable (I, Q, U or V)")
+    header = fits.Header.fromstring(ds.attrs["fits_header"], sep="\n")
+    wcs = _header_wcs(header, "the sky Dataset")
+    wcs.wcs.set()
+    data = np.stack([np.asarray(ds[s].transpose("freq", "y", "x").values, dtype=float)
+                     for s in labels])
+    _check_finite("the sky Dataset", data)
+    return SkyCube(data=data, freq=np.asarray(ds["freq"].values, dtype=float),
+                   stokes=labels, wcs=wcs, units=ds.attrs.get("units", ""),
+                   meta=_msleak_meta(header))

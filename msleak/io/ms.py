@@ -21,10 +21,11 @@ from msleak.conventions import CORR_NAMES
 from msleak.errors import InputError
 
 __all__ = [
-    "SpectralWindow", "Field", "Antennas",
+    "SpectralWindow", "Field", "Antennas", "BeamDirections", "read_beam_directions",
     "check_ms", "open_table", "column_names", "data_column_names", "read_spectral_windows",
     "read_data_descriptions", "read_corr_types", "read_fields", "read_antennas",
-    "read_used_antennas", "read_times", "read_telescope_name", "has_lofar_tables", "iter_rows",
+    "read_used_antennas", "read_times", "read_telescope_name", "has_subtable", "has_lofar_tables",
+    "resolve_field", "resolve_spw", "select_rows", "iter_rows",
     "append_history", "read_history", "ms_summary",
 ]
 
@@ -159,6 +160,41 @@ def read_fields(ms: str | os.PathLike) -> list[Field]:
     return out
 
 
+@dataclass(frozen=True)
+class BeamDirections:
+    """The pointing of one FIELD row, J2000 (ra, dec) in rad: ``phase`` (PHASE_DIR),
+    ``delay`` (DELAY_DIR, where the station beam is steered) and ``tile``
+    (LOFAR_TILE_BEAM_DIR, where LOFAR HBA tiles are steered)."""
+
+    phase: tuple[float, float]
+    delay: tuple[float, float]
+    tile: tuple[float, float]
+
+
+def read_beam_directions(ms: str | os.PathLike, field_id: int = 0) -> BeamDirections:
+    """Phase centre and beam-former directions of FIELD row ``field_id``.
+
+    The one fallback: a beam without its own direction column points where the next one
+    does (no DELAY_DIR: the phase centre; no LOFAR_TILE_BEAM_DIR: the DELAY_DIR).
+    """
+    ms = check_ms(ms)
+    with open_table(_subtable(ms, "FIELD")) as t:
+        if not 0 <= int(field_id) < t.nrows():
+            raise InputError(f"{ms}: no FIELD_ID {field_id} (the MS has {t.nrows()})")
+        cols = t.colnames()
+
+        def direction(column: str, default: tuple) -> tuple[float, float]:
+            if column not in cols:
+                return default
+            value = np.asarray(t.getcell(column, int(field_id)), dtype=float).reshape(-1, 2)[0]
+            return float(value[0]), float(value[1])
+
+        phase = direction("PHASE_DIR", None)
+        delay = direction("DELAY_DIR", phase)
+        return BeamDirections(phase=phase, delay=delay,
+                              tile=direction("LOFAR_TILE_BEAM_DIR", delay))
+
+
 def read_antennas(ms: str | os.PathLike) -> Antennas:
     """Names, ITRF positions (m) and dish diameters of every ANTENNA row."""
     with open_table(_subtable(check_ms(ms), "ANTENNA")) as t:
@@ -203,10 +239,15 @@ def read_telescope_name(ms: str | os.PathLike) -> str:
         return str(t.getcell("TELESCOPE_NAME", 0)) if t.nrows() else ""
 
 
+def has_subtable(ms: str | os.PathLike, name: str) -> bool:
+    """True if the MS has the subtable ``name`` (e.g. LOFAR_ANTENNA_FIELD, MWA_TILE_POINTING)."""
+    return (check_ms(ms) / name / "table.dat").exists()
+
+
 def has_lofar_tables(ms: str | os.PathLike) -> bool:
     """True if the MS has the LOFAR subtables EveryBeam needs for a LOFAR station beam."""
     ms = check_ms(ms)
-    if not (Path(ms) / "LOFAR_ANTENNA_FIELD" / "table.dat").exists():
+    if not has_subtable(ms, "LOFAR_ANTENNA_FIELD"):
         return False
     with open_table(Path(ms) / "FIELD") as t:
         has_tile_dir = "LOFAR_TILE_BEAM_DIR" in t.colnames()
@@ -226,6 +267,33 @@ def read_times(ms: str | os.PathLike, field_id: int | None = None,
     return np.unique(np.concatenate(times))
 
 
+def resolve_field(ms: str | os.PathLike, field: int | str) -> int:
+    """FIELD_ID of ``field``: an id (int or digits) or a FIELD::NAME."""
+    names = [f.name for f in read_fields(ms)]
+    text = str(field).strip()
+    if text.lstrip("-").isdigit():
+        index = int(text)
+        if not 0 <= index < len(names):
+            raise InputError(f"{ms}: no FIELD_ID {index} (the MS has {len(names)} fields); "
+                             "give --field ID or NAME")
+        return index
+    if text not in names:
+        raise InputError(f"{ms}: no field named {text!r} (fields: "
+                         f"{', '.join(f'{i}:{n}' for i, n in enumerate(names))}); "
+                         "give --field ID or NAME")
+    return names.index(text)
+
+
+def resolve_spw(ms: str | os.PathLike, spw: int) -> int:
+    """DATA_DESC_ID of spectral window ``spw`` (the first DATA_DESCRIPTION row naming it)."""
+    spws = [s for s, _ in read_data_descriptions(ms)]
+    if int(spw) not in spws:
+        raise InputError(f"{ms}: no spectral window {spw} in the DATA_DESCRIPTION table "
+                         f"(spectral windows: {', '.join(map(str, sorted(set(spws))))}); "
+                         "give one with --spw")
+    return spws.index(int(spw))
+
+
 def _selection(table, field_id, ddid):
     conditions = []
     if field_id is not None:
@@ -238,13 +306,27 @@ def _selection(table, field_id, ddid):
     return sel, sel.rownumbers(table)
 
 
+def select_rows(ms: str | os.PathLike, *, field_id: int | None = None,
+                ddid: int | None = None) -> np.ndarray:
+    """Main-table row numbers (ascending) of ``field_id`` and ``ddid`` (None: any)."""
+    with open_table(check_ms(ms)) as table:
+        sel, rownumbers = _selection(table, field_id, ddid)
+        if rownumbers is None:
+            return np.arange(table.nrows(), dtype=np.int64)
+        sel.close()
+    return np.asarray(rownumbers, dtype=np.int64)
+
+
 def iter_rows(ms: str | os.PathLike, columns: Sequence[str], *, chunk_rows: int = 100_000,
               field_id: int | None = None, ddid: int | None = None,
+              rows: np.ndarray | None = None,
               readonly: bool = True) -> Iterator[tuple[np.ndarray, dict]]:
     """Yield ``(row_numbers, {column: array})`` chunks of the main table, in row order.
 
     Arrays come as casacore returns them: DATA ``(row, chan, corr)``, UVW ``(row, 3)``, ...
-    ``row_numbers`` index the full main table (also when a selection is made).
+    ``row_numbers`` index the full main table (also when a selection is made). ``rows``
+    (ascending main-table row numbers, e.g. a slice of :func:`select_rows`) reads those
+    rows only, instead of a ``field_id``/``ddid`` selection.
     """
     ms = check_ms(ms)
     if chunk_rows <= 0:
@@ -254,17 +336,35 @@ def iter_rows(ms: str | os.PathLike, columns: Sequence[str], *, chunk_rows: int 
         if missing:
             raise InputError(f"{ms}: no column {', '.join(missing)} "
                              f"(columns: {', '.join(table.colnames())})")
+        if rows is not None:
+            yield from _iter_given_rows(table, columns, np.asarray(rows, np.int64), chunk_rows)
+            return
         sel, rownumbers = _selection(table, field_id, ddid)
         try:
             nrow = sel.nrows()
             for start in range(0, nrow, chunk_rows):
                 n = min(chunk_rows, nrow - start)
-                rows = (np.arange(start, start + n) if rownumbers is None
-                        else np.asarray(rownumbers[start:start + n]))
-                yield rows, {c: sel.getcol(c, startrow=start, nrow=n) for c in columns}
+                got = (np.arange(start, start + n) if rownumbers is None
+                       else np.asarray(rownumbers[start:start + n]))
+                yield got, {c: sel.getcol(c, startrow=start, nrow=n) for c in columns}
         finally:
             if sel is not table:
                 sel.close()
+
+
+def _iter_given_rows(table, columns, rows: np.ndarray, chunk_rows: int):
+    """Chunks of the given ascending rows: one read per column where they are contiguous."""
+    for start in range(0, rows.size, chunk_rows):
+        part = rows[start:start + chunk_rows]
+        first, n = int(part[0]), int(part.size)
+        if int(part[-1]) - first + 1 == n:
+            yield part, {c: table.getcol(c, startrow=first, nrow=n) for c in columns}
+            continue
+        sel = table.selectrows(part.tolist())
+        try:
+            yield part, {c: sel.getcol(c) for c in columns}
+        finally:
+            sel.close()
 
 
 def append_history(ms: str | os.PathLike, message: str, *, command: str = "") -> None:
@@ -295,8 +395,9 @@ def append_history(ms: str | os.PathLike, message: str, *, command: str = "") ->
 
 
 def read_history(ms: str | os.PathLike) -> list[str]:
-    """The HISTORY subtable's rows as ``"<application>: <message>"`` lines, oldest first
-    (empty when the MS has none)."""
+    """The HISTORY subtable's rows as ``"<application>: <message> (<command>)"`` lines
+    (the command line when recorded and not the message), oldest first (empty when the MS
+    has none)."""
     ms = check_ms(ms)
     path = ms / "HISTORY"
     if not path.exists():
@@ -307,7 +408,11 @@ def read_history(ms: str | os.PathLike) -> list[str]:
         order = np.argsort(t.getcol("TIME"), kind="stable")
         apps = t.getcol("APPLICATION") if "APPLICATION" in t.colnames() else [""] * t.nrows()
         msgs = t.getcol("MESSAGE")
-    return [f"{apps[i]}: {msgs[i]}".strip(": ") for i in order]
+        cmds = [" ".join(t.getcell("CLI_COMMAND", row)) if "CLI_COMMAND" in t.colnames()
+                and t.iscelldefined("CLI_COMMAND", row) else "" for row in range(t.nrows())]
+    return [f"{apps[i]}: {msgs[i]}".strip(": ")
+            + (f" ({cmds[i].strip()})" if cmds[i].strip() not in ("", msgs[i]) else "")
+            for i in order]
 
 
 def ms_summary(ms: str | os.PathLike) -> str:
@@ -320,9 +425,11 @@ def ms_summary(ms: str | os.PathLike) -> str:
     spws = read_spectral_windows(ms)
     fields = read_fields(ms)
     corr = read_corr_types(ms)
+    beam_tables = ("LOFAR beam tables" if has_lofar_tables(ms) else
+                   "PHASED_ARRAY table" if has_subtable(ms, "PHASED_ARRAY") else
+                   "no beam tables")
     lines = [f"Measurement Set {ms}",
-             f"  telescope      {read_telescope_name(ms) or '?'} "
-             f"({'with' if has_lofar_tables(ms) else 'without'} LOFAR beam tables)",
+             f"  telescope      {read_telescope_name(ms) or '?'} (with {beam_tables})",
              f"  rows           {nrow}",
              f"  antennas       {len(ants)} ({', '.join(ants.names[:4])}"
              f"{', ...' if len(ants) > 4 else ''})"]

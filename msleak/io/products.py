@@ -21,21 +21,23 @@ from __future__ import annotations
 
 import datetime as _dt
 import errno
+import inspect
 import os
 import sys
 from pathlib import Path
 from typing import Iterable
 
+import numpy as np
 import xarray as xr
 
 from msleak import __version__
 from msleak.errors import InputError
 
 __all__ = ["FORMAT_VERSION", "CF_CONVENTIONS", "save_product", "open_product", "command_line",
-           "history_lines"]
+           "call_record", "refuse_existing", "stamp", "history_lines"]
 
 #: Layout version of every product kind written by this msleak.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 #: the CF conventions version the products' attributes follow where they can
 CF_CONVENTIONS = "CF-1.10"
 
@@ -50,6 +52,58 @@ def command_line() -> str:
     return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
 
 
+def call_record(func, given: dict, *, skip: Iterable[str] = ()) -> str:
+    """What made a product: the command line under the ``msleak`` CLI, else the Python
+    call ``msleak.<verb>(...)`` with the arguments that differ from their defaults
+    (``given`` is the verb's ``locals()``; in-memory objects appear as ``<Type>``)."""
+    import click
+
+    if click.get_current_context(silent=True) is not None:
+        return command_line()
+    params = [p for p in inspect.signature(func).parameters.values() if p.name not in skip]
+    shown = [p for p in params if p.default is p.empty or not _same(given[p.name], p.default)]
+    args = [_text(given[p.name]) if p.kind is p.POSITIONAL_OR_KEYWORD
+            else f"{p.name}={_text(given[p.name])}" for p in shown]
+    return f"msleak.{func.__name__}({', '.join(args)})"
+
+
+def _text(value) -> str:
+    if isinstance(value, (str, os.PathLike)):
+        return repr(os.fspath(value))
+    if isinstance(value, (list, tuple)):
+        inner = ", ".join(_text(v) for v in value)
+        return f"[{inner}]" if isinstance(value, list) else f"({inner})"
+    if isinstance(value, (bool, int, float, type(None))) or (
+            isinstance(value, np.ndarray) and value.size <= 16):
+        return repr(value)
+    return f"<{type(value).__name__}>"
+
+
+def _same(value, default) -> bool:
+    try:
+        return bool(value == default)
+    except (TypeError, ValueError):  # arrays, Datasets
+        return False
+
+
+def refuse_existing(path: str | os.PathLike | None, overwrite: bool) -> None:
+    """One-line InputError if ``path`` exists and ``overwrite`` is false (checked before
+    any work, so a refused run costs nothing)."""
+    if path is not None and Path(path).exists() and not overwrite:
+        raise InputError(f"{path} exists; choose another name or pass --overwrite")
+
+
+def stamp(ds: xr.Dataset, command: str, history: Iterable[str] | None = None) -> xr.Dataset:
+    """``ds`` with the provenance attributes of a product made by ``command``: ``command``,
+    ``Conventions`` and the ``history`` chain (``history``, default the chain ``ds``
+    already holds, plus this step's line), whether or not it is then written."""
+    chain = list(history_lines(ds.attrs) if history is None else history)
+    now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    chain.append(f"{now} msleak {__version__}: {command}")
+    return ds.assign_attrs(command=command, history="\n".join(chain),
+                           Conventions=CF_CONVENTIONS)
+
+
 def history_lines(attrs: dict) -> list[str]:
     """The ``history`` chain stored in a product's (or dataset's) attributes."""
     text = attrs.get("history", "")
@@ -57,12 +111,13 @@ def history_lines(attrs: dict) -> list[str]:
 
 
 def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
-                 overwrite: bool = True, history: Iterable[str] = ()) -> Path:
+                 overwrite: bool, history: Iterable[str] = ()) -> Path:
     """Write ``ds`` as an msleak product of the given kind; returns the path.
 
-    ``history`` is the chain of the inputs (e.g. :func:`history_lines` of the input
-    product); this write's own line (time, version, command) is appended to it, and to
-    whatever ``ds.attrs["history"]`` already holds when ``history`` is empty.
+    A dataset made by :func:`stamp` keeps its provenance. Otherwise its ``command``
+    (default: this process's command line) is stamped now, after ``history`` (the chain
+    of the inputs, e.g. :func:`history_lines` of the input product) or, when that is
+    empty, after the chain ``ds`` already holds.
 
     The file is written to a temporary name and renamed, so an interrupted or failed
     write (full disk: a one-line :class:`InputError`) never leaves a truncated product
@@ -80,11 +135,10 @@ def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
         "msleak_format": FORMAT_VERSION,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     })
-    ds.attrs.setdefault("command", command_line())
-    chain = list(history) or history_lines(ds.attrs)
-    chain.append(f"{ds.attrs['created']} msleak {__version__}: {ds.attrs['command']}")
-    ds.attrs["history"] = "\n".join(chain)
-    ds.attrs["Conventions"] = CF_CONVENTIONS
+    command = ds.attrs.setdefault("command", command_line())
+    chain = history_lines(ds.attrs)
+    if not (chain and chain[-1].endswith(f": {command}")):
+        ds = stamp(ds, command, list(history) or chain)
     for name, value in list(ds.attrs.items()):
         if isinstance(value, bool):
             ds.attrs[name] = int(value)

@@ -19,6 +19,8 @@ ReferenceWavelength) or PolarizedFraction/PolarizationAngle (at lambda = 0) defi
 polarized fraction of I rotated as 2 (angle + RM lambda^2).
 
 Only point sources (Type POINT or empty) are read; patch lines (empty Name) are skipped.
+:func:`read_sky` reads any sky predict takes, a FITS cube or a makesourcedb file, as point
+sources (docs/sky.md).
 """
 
 from __future__ import annotations
@@ -31,13 +33,14 @@ from pathlib import Path
 import numpy as np
 
 from msleak import __version__
-from msleak.errors import InputError
-from msleak.sky.sources import PointSources
-
-__all__ = ["read_skymodel", "write_skymodel", "parse_angle", "format_ra", "format_dec",
-           "KNOWN_FIELDS"]
-
 from msleak.constants import SPEED_OF_LIGHT
+from msleak.errors import InputError
+from msleak.io.angles import format_dec, format_ra, parse_angle
+from msleak.io.fits import is_fits, read_cube
+from msleak.sky.cube import crop, recentre
+from msleak.sky.sources import PointSources, sources_from_cube
+
+__all__ = ["read_sky", "read_skymodel", "write_skymodel", "KNOWN_FIELDS"]
 
 KNOWN_FIELDS = ("Name", "Type", "RefType", "Ra", "Dec", "I", "Q", "U", "V", "SpectralIndex",
                 "LogarithmicSI", "ReferenceFrequency", "MajorAxis", "MinorAxis",
@@ -45,78 +48,6 @@ KNOWN_FIELDS = ("Name", "Type", "RefType", "Ra", "Dec", "I", "Q", "U", "V", "Spe
                 "PolarizedFraction", "PolarizationAngle", "ReferenceWavelength", "Patch",
                 "Category", "IShapelet", "QShapelet", "UShapelet", "VShapelet")
 _KNOWN = {f.lower(): f for f in KNOWN_FIELDS}
-
-_UNITS = {"deg": math.pi / 180, "d": math.pi / 180, "rad": 1.0, "arcmin": math.pi / 10800,
-          "arcsec": math.pi / 648000, "h": math.pi / 12, "": 1.0}
-
-
-# ---------------------------------------------------------------------------- angles
-def parse_angle(text: str, *, allow_colon: bool = True) -> float:
-    """An angle as casacore's MVAngle reads it, in radians (see module doc).
-
-    Raises
-    ------
-    ValueError
-        If the text is not an angle.
-    """
-    s = text.strip()
-    if not s:
-        raise ValueError("empty angle")
-    sign = -1.0 if s[0] == "-" else 1.0
-    body = s[1:] if s[0] in "+-" else s
-    if ":" in body:
-        if not allow_colon:
-            raise ValueError(f"colons are not allowed in a declination ({text!r}); "
-                             "use +dd.mm.ss.sss")
-        parts = body.split(":")
-        return sign * _sexagesimal(parts, text) * math.pi / 12
-    if body.count(".") >= 2:
-        return sign * _sexagesimal(body.split(".", 2), text) * math.pi / 180
-    m = re.fullmatch(r"(\d*)([hHdD])(?:(\d*)[mM]?)?(?:(\d*\.?\d*)[sS]?)?", body)
-    if m and m.group(1):
-        scale = math.pi / 12 if m.group(2) in "hH" else math.pi / 180
-        val = float(m.group(1)) + float(m.group(3) or 0) / 60 + float(m.group(4) or 0) / 3600
-        return sign * val * scale
-    m = re.fullmatch(r"([0-9]*\.?[0-9]+(?:[eE][-+]?\d+)?)\s*([a-zA-Z]*)", body)
-    if m and m.group(2).lower() in _UNITS:
-        return sign * float(m.group(1)) * _UNITS[m.group(2).lower()]
-    raise ValueError(f"{text!r} is not an angle")
-
-
-def _sexagesimal(parts, text) -> float:
-    vals = []
-    for p in parts:
-        p = p.strip()
-        vals.append(float(p) if p else 0.0)
-    if len(vals) > 3 or any(v < 0 for v in vals):
-        raise ValueError(f"{text!r} is not an angle")
-    while len(vals) < 3:
-        vals.append(0.0)
-    return vals[0] + vals[1] / 60 + vals[2] / 3600
-
-
-def format_ra(ra: float, decimals: int = 6) -> str:
-    """RA (rad) as ``hh:mm:ss.ssssss`` in [0, 24h)."""
-    unit = 10**decimals
-    total = int(round((math.degrees(ra) % 360.0) / 15.0 * 3600 * unit)) % (24 * 3600 * unit)
-    sec_units = total % (60 * unit)
-    minutes = (total // (60 * unit)) % 60
-    hours = total // (3600 * unit)
-    return f"{hours:02d}:{minutes:02d}:{sec_units // unit:02d}.{sec_units % unit:0{decimals}d}"
-
-
-def format_dec(dec: float, decimals: int = 5) -> str:
-    """Dec (rad) as ``+dd.mm.ss.sssss`` (the sign always written)."""
-    unit = 10**decimals
-    deg = math.degrees(dec)
-    sign = "-" if deg < 0 else "+"
-    total = int(round(abs(deg) * 3600 * unit))
-    sec_units = total % (60 * unit)
-    minutes = (total // (60 * unit)) % 60
-    degrees = total // (3600 * unit)
-    frac = f"{sec_units % unit:0{decimals}d}"
-    return f"{sign}{degrees:02d}.{minutes:02d}.{sec_units // unit:02d}.{frac}"
-
 
 # ---------------------------------------------------------------------------- reading
 def _split(line: str, lineno: int, path) -> list[str]:
@@ -216,7 +147,45 @@ def read_skymodel(path: str | os.PathLike) -> PointSources:
     return _assemble(rows)
 
 
+def read_sky(path: str | os.PathLike, *, fov_deg: float | None = None,
+             phase_centre: tuple[float, float] | None = None) -> PointSources:
+    """Read a sky as point sources: a FITS cube (one per voxel) or a makesourcedb file.
+
+    Parameters
+    ----------
+    path : FITS cube or makesourcedb text file
+    fov_deg : keep the central ``fov_deg`` x ``fov_deg`` (deg): a cube is cropped
+        (:func:`msleak.sky.cube.crop`); a makesourcedb sky keeps the sources with |l| and
+        |m| <= fov / 2 (rad, the half width of a SIN cube of that FoV) about
+        ``phase_centre`` (then required)
+    phase_centre : (RA, Dec) J2000, deg; a cube is first re-centred there
+        (:func:`msleak.sky.cube.recentre`: the grid keeps its (l, m) geometry)
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"sky file {path} does not exist")
+    if path.is_dir():
+        raise InputError(f"sky {path} is a directory, not a FITS cube or makesourcedb file")
+    centre = None if phase_centre is None else tuple(math.radians(a) for a in phase_centre)
+    if is_fits(path):
+        cube = read_cube(path)
+        if centre is not None:
+            cube = recentre(cube, *centre)
+        if fov_deg is not None:
+            cube = crop(cube, fov_deg=fov_deg)
+        return sources_from_cube(cube)
+    sources = read_skymodel(path)
+    if fov_deg is not None:
+        if centre is None:
+            raise InputError("--fov on a makesourcedb sky needs --phase-centre")
+        half = math.radians(fov_deg) / 2
+        l_, m_, n_ = sources.lmn(*centre)
+        sources = sources.select((np.abs(l_) <= half) & (np.abs(m_) <= half) & (n_ > 0))
+    return sources
+
+
 def _read_line(line, lineno, path, fmt, rows):
+    """Parse one source line into ``rows`` (patch lines are skipped)."""
     values = _split(line, lineno, path)
     if len(values) > len(fmt) and any(v for v in values[len(fmt):]):
         raise InputError(f"{path}:{lineno}: {len(values)} values for {len(fmt)} format fields")
@@ -227,98 +196,104 @@ def _read_line(line, lineno, path, fmt, rows):
             v = default
         if canon:
             rec[canon] = _unquote(v.strip())
-
-    def where(field):
-        return f"{path}:{lineno}: {field}"
-
-    def num(field, default=None):
-        v = rec.get(field, "")
-        if v == "":
-            return default
-        try:
-            x = float(v)
-        except ValueError:
-            raise InputError(f"{where(field)} {v!r} is not a number") from None
-        if not math.isfinite(x):
-            raise InputError(f"{where(field)} {v!r} is not a finite number")
-        return x
-
+    where = f"{path}:{lineno}:"
     name = rec.get("Name", "")
     if not name:
         if rec.get("Patch"):
-            return  # a patch definition line
-        raise InputError(f"{where('Name')} a source needs a name")
+            return
+        raise InputError(f"{where} Name a source needs a name")
+    ra, dec = _position(rec, where)
+    i = _number(rec, "I", where, 1.0)
+    q, u, v = (_number(rec, s, where) for s in ("Q", "U", "V"))
+    nu0 = _number(rec, "ReferenceFrequency", where, 0.0)
+    si, log_si = _spectral_index(rec, where, nu0)
+    rm, pf, pa, refwl = (_number(rec, s, where) for s in (
+        "RotationMeasure", "PolarizedFraction", "PolarizationAngle", "ReferenceWavelength"))
+    _check_polarization(where, i, q, u, nu0, rm, pf, pa, refwl)
+    for key, value in (("name", name), ("ra", ra), ("dec", dec),
+                       ("iquv", [i, q or 0.0, u or 0.0, v or 0.0]), ("nu0", nu0), ("si", si),
+                       ("log", log_si), ("rm", np.nan if rm is None else rm),
+                       ("pf", pf or 0.0), ("pa", pa or 0.0),
+                       ("qu_given", q is not None or u is not None), ("refwl", refwl)):
+        rows[key].append(value)
+
+
+def _number(rec: dict, field: str, where: str, default: float | None = None):
+    v = rec.get(field, "")
+    if v == "":
+        return default
+    try:
+        x = float(v)
+    except ValueError:
+        raise InputError(f"{where} {field} {v!r} is not a number") from None
+    if not math.isfinite(x):
+        raise InputError(f"{where} {field} {v!r} is not a finite number")
+    return x
+
+
+def _position(rec: dict, where: str) -> tuple[float, float]:
+    """(RA, Dec) in rad of a point source record; checks Type and RefType."""
     stype = rec.get("Type", "").upper()
     if stype not in ("", "POINT"):
-        raise InputError(f"{where('Type')} source type {rec['Type']!r} is not supported "
+        raise InputError(f"{where} Type source type {rec['Type']!r} is not supported "
                          "(msleak reads point sources only)")
     reftype = rec.get("RefType", "") or "J2000"
     if reftype.upper() != "J2000":
-        raise InputError(f"{where('RefType')} {reftype!r} is not supported (J2000 only)")
+        raise InputError(f"{where} RefType {reftype!r} is not supported (J2000 only)")
     try:
         ra = parse_angle(rec.get("Ra", ""), allow_colon=True)
     except ValueError as err:
-        raise InputError(f"{where('Ra')} {err}") from None
+        raise InputError(f"{where} Ra {err}") from None
     try:
         dec = parse_angle(rec.get("Dec", ""), allow_colon=False)
     except ValueError as err:
-        raise InputError(f"{where('Dec')} {err}") from None
+        raise InputError(f"{where} Dec {err}") from None
     if not (-math.pi / 2 - 1e-12 <= dec <= math.pi / 2 + 1e-12):
-        raise InputError(f"{where('Dec')} {rec['Dec']!r} is outside -90..90 deg")
-    i = num("I", 1.0)
-    q, u, v = (num(s) for s in ("Q", "U", "V"))
-    nu0 = num("ReferenceFrequency", 0.0)
+        raise InputError(f"{where} Dec {rec['Dec']!r} is outside -90..90 deg")
+    return ra, dec
+
+
+def _spectral_index(rec: dict, where: str, nu0: float) -> tuple[list[float], bool]:
+    """The SpectralIndex terms and LogarithmicSI of a record."""
     si_text = rec.get("SpectralIndex", "").strip()
+    si: list[float] = []
     if si_text:
         inner = si_text[1:-1] if si_text.startswith("[") and si_text.endswith("]") else si_text
         try:
             si = [float(x) for x in inner.split(",") if x.strip()]
         except ValueError:
-            raise InputError(f"{where('SpectralIndex')} {si_text!r} is not a list of "
+            raise InputError(f"{where} SpectralIndex {si_text!r} is not a list of "
                              "numbers") from None
-    else:
-        si = []
     if si and nu0 <= 0:
-        raise InputError(f"{where('SpectralIndex')} given without a ReferenceFrequency")
+        raise InputError(f"{where} SpectralIndex given without a ReferenceFrequency")
     log_text = rec.get("LogarithmicSI", "").strip().lower()
     if log_text not in ("", "true", "false", "t", "f", "1", "0", "yes", "no", "y", "n"):
-        raise InputError(f"{where('LogarithmicSI')} {log_text!r} is not a boolean")
-    log_si = log_text not in ("false", "f", "0", "no", "n")
-    rm, pf, pa, refwl = num("RotationMeasure"), num("PolarizedFraction"), \
-        num("PolarizationAngle"), num("ReferenceWavelength")
-    qu_given = q is not None or u is not None
+        raise InputError(f"{where} LogarithmicSI {log_text!r} is not a boolean")
+    return si, log_text not in ("false", "f", "0", "no", "n")
+
+
+def _check_polarization(where, i, q, u, nu0, rm, pf, pa, refwl) -> None:
+    """DP3's rules for Q, U, RotationMeasure, PolarizedFraction/Angle."""
+    either = (f"{where} RotationMeasure give either Q and U or PolarizedFraction and "
+              "PolarizationAngle with a RotationMeasure")
     if rm is None:
         if pf is not None or pa is not None or refwl is not None:
-            raise InputError(f"{where('RotationMeasure')} PolarizedFraction, "
+            raise InputError(f"{where} RotationMeasure PolarizedFraction, "
                              "PolarizationAngle and ReferenceWavelength need a RotationMeasure")
-    elif qu_given:
+    elif q is not None or u is not None:
         if q is None or u is None or pf is not None or pa is not None:
-            raise InputError(f"{where('RotationMeasure')} give either Q and U or "
-                             "PolarizedFraction and PolarizationAngle with a RotationMeasure")
+            raise InputError(either)
         if refwl is None and nu0 <= 0:
-            raise InputError(f"{where('RotationMeasure')} needs a ReferenceFrequency or "
+            raise InputError(f"{where} RotationMeasure needs a ReferenceFrequency or "
                              "ReferenceWavelength")
         if i == 0:
-            raise InputError(f"{where('I')} a RotationMeasure source needs I != 0")
+            raise InputError(f"{where} I a RotationMeasure source needs I != 0")
     else:
         if pf is None or pa is None:
-            raise InputError(f"{where('RotationMeasure')} give either Q and U or "
-                             "PolarizedFraction and PolarizationAngle with a RotationMeasure")
+            raise InputError(either)
         if refwl not in (None, 0.0):
-            raise InputError(f"{where('ReferenceWavelength')} PolarizedFraction/"
+            raise InputError(f"{where} ReferenceWavelength PolarizedFraction/"
                              "PolarizationAngle are defined at ReferenceWavelength = 0 only")
-    rows["name"].append(name)
-    rows["ra"].append(ra)
-    rows["dec"].append(dec)
-    rows["iquv"].append([i, q or 0.0, u or 0.0, v or 0.0])
-    rows["nu0"].append(nu0)
-    rows["si"].append(si)
-    rows["log"].append(log_si)
-    rows["rm"].append(np.nan if rm is None else rm)
-    rows["pf"].append(pf or 0.0)
-    rows["pa"].append(pa or 0.0)
-    rows["qu_given"].append(qu_given)
-    rows["refwl"].append(refwl)
 
 
 def _assemble(rows) -> PointSources:
@@ -390,63 +365,78 @@ def write_skymodel(path: str | os.PathLike, sources: PointSources, *,
     if comment:
         lines += [f"# {c}" for c in comment.splitlines()]
     if sources.is_tabulated:
-        nchan = len(sources.freq)
-        if channel is None:
-            if nchan != 1:
-                raise InputError(f"the sky has {nchan} channels; makesourcedb holds one "
-                                 "spectrum per source: choose a channel")
-            channel = 0
-        if not 0 <= channel < nchan:
-            raise InputError(f"channel {channel} is outside 0..{nchan - 1}")
-        nu = float(sources.freq[channel])
-        lines.append(f"# sky channel {channel}: {nu:.1f} Hz, flat spectra")
-        lines.append("format = Name, Type, Ra, Dec, I, Q, U, V, ReferenceFrequency, "
-                     "SpectralIndex='[]'")
-        for k in range(n):
-            i, q, u, v = sources.stokes[k, channel]
-            lines.append(f"{names[k]}, POINT, {format_ra(sources.ra[k])}, "
-                         f"{format_dec(sources.dec[k])}, {_g(i)}, {_g(q)}, {_g(u)}, {_g(v)}, "
-                         f"{_g(nu)}, []")
+        lines += _tabulated_lines(sources, names, channel)
     else:
-        rm = sources.rotation_measure if sources.rotation_measure is not None \
-            else np.full(n, np.nan)
-        has_rm = np.isfinite(rm)
-        nu0 = sources.ref_freq
-        pfpa = has_rm & (nu0 <= 0)
-        any_lin = not np.all(sources.log_si)
-        cols = "Name, Type, Ra, Dec, I, Q, U, V, ReferenceFrequency, SpectralIndex='[]'"
-        if any_lin:
-            cols += ", LogarithmicSI='true'"
-        if has_rm.any():
-            cols += ", RotationMeasure"
-        if pfpa.any():
-            cols += ", PolarizedFraction, PolarizationAngle"
-        lines.append("format = " + cols)
-        for k in range(n):
-            i, q, u, v = sources.stokes_ref[k]
-            if has_rm[k] and not pfpa[k]:
-                lam2 = (SPEED_OF_LIGHT / nu0[k]) ** 2
-                p = i * sources.pol_fraction[k]
-                chi = 2 * (sources.pol_angle[k] + rm[k] * lam2)
-                q, u = p * math.cos(chi), p * math.sin(chi)
-            si = sources.spectral_index[k] if sources.spectral_index is not None else []
-            si = list(si)
-            while si and si[-1] == 0:
-                si.pop()
-            qs, us = ("", "") if pfpa[k] else (_g(q), _g(u))
-            row = [names[k], "POINT", format_ra(sources.ra[k]), format_dec(sources.dec[k]),
-                   _g(i), qs, us, _g(v), _g(nu0[k]) if nu0[k] > 0 else "",
-                   "[" + ",".join(_g(x) for x in si) + "]"]
-            if any_lin:
-                row.append("true" if sources.log_si[k] else "false")
-            if has_rm.any():
-                row.append(_g(rm[k]) if has_rm[k] else "")
-            if pfpa.any():
-                row += ([_g(sources.pol_fraction[k]), _g(sources.pol_angle[k])] if pfpa[k]
-                        else ["", ""])
-            lines.append(", ".join(row))
+        lines += _parametric_lines(sources, names)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
     tmp.write_text("\n".join(lines) + "\n")
     os.replace(tmp, path)
     return path
+
+
+def _tabulated_lines(sources: PointSources, names, channel: int | None) -> list[str]:
+    """Format and source lines of one channel of tabulated sources, flat spectra."""
+    lines: list[str] = []
+    nchan = len(sources.freq)
+    if channel is None:
+        if nchan != 1:
+            raise InputError(f"the sky has {nchan} channels; makesourcedb holds one "
+                             "spectrum per source: choose a channel")
+        channel = 0
+    if not 0 <= channel < nchan:
+        raise InputError(f"channel {channel} is outside 0..{nchan - 1}")
+    nu = float(sources.freq[channel])
+    lines.append(f"# sky channel {channel}: {nu:.1f} Hz, flat spectra")
+    lines.append("format = Name, Type, Ra, Dec, I, Q, U, V, ReferenceFrequency, "
+                 "SpectralIndex='[]'")
+    for k in range(len(sources)):
+        i, q, u, v = sources.stokes[k, channel]
+        lines.append(f"{names[k]}, POINT, {format_ra(sources.ra[k])}, "
+                     f"{format_dec(sources.dec[k])}, {_g(i)}, {_g(q)}, {_g(u)}, {_g(v)}, "
+                     f"{_g(nu)}, []")
+    return lines
+
+
+def _parametric_lines(sources: PointSources, names) -> list[str]:
+    """Format and source lines of parametric sources (spectral terms, RM)."""
+    lines: list[str] = []
+    n = len(sources)
+    rm = sources.rotation_measure if sources.rotation_measure is not None \
+        else np.full(n, np.nan)
+    has_rm = np.isfinite(rm)
+    nu0 = sources.ref_freq
+    pfpa = has_rm & (nu0 <= 0)
+    any_lin = not np.all(sources.log_si)
+    cols = "Name, Type, Ra, Dec, I, Q, U, V, ReferenceFrequency, SpectralIndex='[]'"
+    if any_lin:
+        cols += ", LogarithmicSI='true'"
+    if has_rm.any():
+        cols += ", RotationMeasure"
+    if pfpa.any():
+        cols += ", PolarizedFraction, PolarizationAngle"
+    lines.append("format = " + cols)
+    for k in range(n):
+        i, q, u, v = sources.stokes_ref[k]
+        if has_rm[k] and not pfpa[k]:
+            lam2 = (SPEED_OF_LIGHT / nu0[k]) ** 2
+            p = i * sources.pol_fraction[k]
+            chi = 2 * (sources.pol_angle[k] + rm[k] * lam2)
+            q, u = p * math.cos(chi), p * math.sin(chi)
+        si = sources.spectral_index[k] if sources.spectral_index is not None else []
+        si = list(si)
+        while si and si[-1] == 0:
+            si.pop()
+        qs, us = ("", "") if pfpa[k] else (_g(q), _g(u))
+        row = [names[k], "POINT", format_ra(sources.ra[k]), format_dec(sources.dec[k]),
+               _g(i), qs, us, _g(v), _g(nu0[k]) if nu0[k] > 0 else "",
+               "[" + ",".join(_g(x) for x in si) + "]"]
+        if any_lin:
+            row.append("true" if sources.log_si[k] else "false")
+        if has_rm.any():
+            row.append(_g(rm[k]) if has_rm[k] else "")
+        if pfpa.any():
+            row += ([_g(sources.pol_fraction[k]), _g(sources.pol_angle[k])] if pfpa[k]
+                    else ["", ""])
+        lines.append(", ".join(row))
+    return lines

@@ -2,17 +2,25 @@
 
 :mod:`~msleak.leakage.fraction`  L_I = 100 sqrt(P_I / P_P) per 2D bin and 3D voxel, masks
 :mod:`~msleak.leakage.stats`     voxel statistics, histogram peak, Pareto (b = 1) fits
-:mod:`~msleak.leakage.expected`  expected leakage of an observed field, bias correction
-:mod:`~msleak.leakage.analysis`  the above assembled as xarray Datasets
-:mod:`~msleak.leakage.report`    ``msleak leakage``: read products, write tables/products/figures
+:mod:`~msleak.leakage.bootstrap` block-bootstrap errors over correlated voxels
+:mod:`~msleak.leakage.expected`  expected leakage and bias correction, on arrays
+:mod:`~msleak.leakage.observed`  the same for observed PS products, as Datasets
+:mod:`~msleak.leakage.analysis`  the leakage result (:func:`analyse`) and the verb
+                                 :func:`leakage` (``msleak leakage``)
+:mod:`~msleak.leakage.outputs`   its tables, products and figures
+
+``msleak.leakage`` is both this package and, when called, the verb
+:func:`msleak.leakage.analysis.leakage`.
 """
 
-from msleak.leakage.analysis import analyse, correct, predict
-from msleak.leakage.expected import (bias_correct, expected_leakage_error,
+from msleak._callable import make_callable
+from msleak.leakage.analysis import analyse, leakage
+from msleak.leakage.expected import (corrected_power, expected_leakage_error,
                                      expected_leakage_power, spherical_from_bins)
 from msleak.leakage.fraction import (MASK_CODES, leakage_fraction, leakage_map,
                                      leakage_voxels)
-from msleak.leakage.report import LeakageOptions, run_leakage
+from msleak.leakage.observed import bias_correct, expected_leakage
+from msleak.leakage.outputs import STAT_COLUMNS
 from msleak.leakage.stats import (ParetoFit, field_estimate, fit_pareto,
                                   fit_pareto_histogram, leakage_statistics,
                                   pareto_density_percent)
@@ -21,7 +29,10 @@ __all__ = [
     "MASK_CODES", "leakage_fraction", "leakage_map", "leakage_voxels",
     "ParetoFit", "fit_pareto", "fit_pareto_histogram", "leakage_statistics",
     "pareto_density_percent", "field_estimate",
-    "expected_leakage_power", "expected_leakage_error", "bias_correct",
-    "spherical_from_bins",
-    "analyse", "predict", "correct", "LeakageOptions", "run_leakage",
+    "expected_leakage_power", "expected_leakage_error", "corrected_power",
+    "spherical_from_bins", "STAT_COLUMNS",
+    "leakage", "analyse", "expected_leakage", "bias_correct",
 ]
+
+
+make_callable(__name__, leakage)

@@ -1,37 +1,35 @@
-"""Assemble leakage results as xarray Datasets (no file access here).
-
-:func:`analyse` turns several PS products (e.g. three fields of view of one field) into
-one leakage result (layout in docs/leakage.md); :func:`predict` and :func:`correct` make
-the expected-leakage and bias-corrected spectra of observed PS products.
-"""
+"""The leakage of PS products as xarray Datasets (docs/leakage.md): :func:`analyse` (L_I
+maps, voxel statistics, Pareto fits, per-field estimate) and the verb :func:`leakage`
+(``msleak leakage``), which adds the expected leakage and bias correction of observed
+products (:mod:`msleak.leakage.observed`) and writes the outputs
+(:mod:`msleak.leakage.outputs`)."""
 
 from __future__ import annotations
 
 import logging
-from typing import Literal, Sequence
+import os
+from pathlib import Path
+from typing import Literal, Sequence, Union
 
 import numpy as np
 import xarray as xr
 
 from msleak.errors import InputError
-from msleak.leakage import expected as ex
-from msleak.leakage.bootstrap import cell_groups
+from msleak.io.products import call_record, history_lines, open_product, stamp
+from msleak.leakage.bootstrap import cell_groups, on_uv_grid, uv_cell_size
 from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_fraction,
-                                     leakage_map, leakage_voxels, stokes_power, voxel_power)
-from msleak.leakage.stats import field_estimate, leakage_statistics
+                                     leakage_map, leakage_voxels, voxel_power)
+from msleak.leakage.observed import ModelMode, bias_correct, expected_leakage
+from msleak.leakage.outputs import (OUTPUT_FILES, default_labels, refuse_existing,
+                                    write_leakage)
+from msleak.leakage.stats import LeakageStatistics, field_estimate, leakage_statistics
 
-__all__ = ["analyse", "realisation_estimates", "predict", "correct", "voxel_groups",
-           "correlation", "STAT_COLUMNS", "VOXEL_DEFINITION"]
+__all__ = ["leakage", "analyse", "realisation_estimates", "voxel_groups", "VOXEL_DEFINITION"]
 
 log = logging.getLogger(__name__)
 
-ModelMode = Literal["auto", "map", "median", "field"]
-
-#: per-input statistics, in the order of stats.csv (percent unless n_* or ks_*)
-STAT_COLUMNS = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
-                "pareto_median_hist", "peak_bin_width", "n_voxels", "n_masked",
-                "median_err", "mean_err", "pareto_median_err_iid", "ks_d", "ks_p",
-                "ks_p_eff", "n_eff", "n_groups")
+#: a PS product: its path, or the Dataset
+PsInput = Union[str, os.PathLike, xr.Dataset]
 
 #: what a voxel of the statistics is (attribute ``P_P_voxels`` of the result)
 VOXEL_DEFINITION = ("full uv plane: each cell (u, tau) of power3d gives two voxels, "
@@ -43,7 +41,183 @@ _PERCENT = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err
             "pareto_median_hist", "peak_bin_width", "median_err", "mean_err",
             "pareto_median_err_iid")
 
+#: dimensionless statistics (units "1", the CF convention): counts, ratios, KS results
+_DIMENSIONLESS = ("n_voxels", "n_masked", "ks_d", "ks_p", "ks_p_eff", "n_eff", "n_groups",
+                  "pareto_loc", "pareto_scale", "wedge_slope_horizon", "wedge_slope_primary",
+                  "hist_counts", "n_masked_by_reason")
+
 _MASK_DOC = ", ".join(f"{c}={n}" for n, c in MASK_CODES.items())
+
+
+def leakage(ps: PsInput | Sequence[PsInput], *, labels: Sequence[str] | None = None,
+            realisations: Sequence[int] | None = None, field_name: str = "",
+            stats_from: Literal["voxels", "bins"] = "voxels",
+            negative: NegativePolicy = "mask", bins: int = 100, hist_quantile: float = 0.99,
+            k_par_range: tuple[float, float] | None = None,
+            k_perp_range: tuple[float, float] | None = None,
+            expected: PsInput | Sequence[PsInput] | None = None,
+            expected_labels: Sequence[str] | None = None, expected_model: ModelMode = "auto",
+            leakage_rel_error: float | None = None,
+            correct: PsInput | Sequence[PsInput] | None = None, n_boot: int = 200,
+            bootstrap_block: int = 2, seed: int = 0, output: str | os.PathLike | None = None,
+            overwrite: bool = False, figures: bool = True, pdf: bool = True) -> xr.Dataset:
+    """Fractional leakage L_I = 100 sqrt(P_I / P_P) of PS products (``msleak leakage``).
+
+    Parameters
+    ----------
+    ps : path or xarray.Dataset, or a sequence of them
+        PS products (kind ``ps``), e.g. the fields of view of one field.
+    labels, realisations, field_name, stats_from, negative, bins, hist_quantile,
+    k_par_range, k_perp_range, expected_model, leakage_rel_error, n_boot,
+    bootstrap_block, seed :
+        As the options of ``msleak leakage`` (docs/leakage.md); k ranges in Mpc^-1.
+    expected, correct : path or Dataset, or a sequence of them, optional
+        Observed PS products: the expected leakage in them, and the bias correction of
+        their Stokes I; written as ``expected_<label>.h5``, ``corrected_<label>.h5``, so
+        they need ``output`` (in memory: :func:`~msleak.leakage.observed.expected_leakage`,
+        :func:`~msleak.leakage.observed.bias_correct`).
+    output : path, optional
+        Directory for stats.csv, estimates.csv, stats.md, leakage.h5 and the figures
+        (PNG, and PDF with ``pdf``); None: return only.
+    overwrite : bool
+        Replace the products of an existing ``output``.
+
+    Returns
+    -------
+    xarray.Dataset
+        The content of leakage.h5: maps on (input, k_par, k_perp), the statistics table
+        as variables on ``input`` (``result[list(STAT_COLUMNS)].to_dataframe()``, with
+        :data:`msleak.leakage.outputs.STAT_COLUMNS`), histograms, per-realisation
+        estimates; ``history`` holds the inputs' chains (docs/products.md).
+    """
+    given = dict(locals())
+    inputs, obs_inputs, corr_inputs = _as_list(ps), _as_list(expected), _as_list(correct)
+    labels, obs_labels = _check_options(
+        len(inputs), labels, realisations, len(obs_inputs), len(corr_inputs), expected_labels,
+        k_par_range, k_perp_range, hist_quantile, output)
+    if output is not None:
+        refuse_existing(output, overwrite)
+    command = call_record(leakage, given)
+    datasets, names = _open_all(inputs, "PS input")
+    observed, obs_names = _open_all(obs_inputs or corr_inputs, "observed PS")
+    observed_i, corr_names = ((_open_all(corr_inputs, "observed PS") if obs_inputs
+                               else (observed, obs_names)))
+    labels = labels or default_labels(names)
+    obs_labels = obs_labels or default_labels(obs_names)
+    result = analyse(datasets, labels, names, stats_from=stats_from, negative=negative,
+                     bins=bins, upper_quantile=hist_quantile, k_par_range=k_par_range,
+                     k_perp_range=k_perp_range, field_name=field_name, n_boot=n_boot,
+                     bootstrap_block=bootstrap_block, seed=seed, realisations=realisations)
+    result = stamp(result, command, _input_history(datasets, labels))
+    if output is None:
+        return result
+    exp_results, corr_results = _observed_results(
+        result, observed, obs_labels, obs_names, observed_i if corr_inputs else [],
+        corr_names, expected_model, leakage_rel_error)
+    write_leakage(result, exp_results if obs_inputs else [], corr_results, output,
+                  figures=figures, pdf=pdf)
+    return result
+
+
+def _observed_results(result: xr.Dataset, observed, labels, names, observed_i, names_i,
+                      mode: ModelMode, rel_error: float | None
+                      ) -> tuple[list[xr.Dataset], list[xr.Dataset]]:
+    """Expected leakage of every observed product and, if ``observed_i`` is given, the
+    bias correction of their Stokes I; ``history``: the result's chain, then the observed
+    products' chains, prefixed by ``[observed <label>]``."""
+    expected, corrected = [], []
+    for i, (obs, lab, name) in enumerate(zip(observed, labels, names)):
+        exp = expected_leakage(result, obs, i, len(observed), mode, rel_error, name)
+        # the inputs' chains (the result's, without its own line), then the observed one
+        chain = history_lines(result.attrs)[:-1] + _input_history([obs], [f"observed {lab}"],
+                                                              prefix_one=True)
+        exp = stamp(exp.assign_attrs(label=lab), result.attrs["command"], chain)
+        log.info("%s (%s): expected leakage from L_I model %s (%s, %.4g %%)", name, lab,
+                 exp.attrs["model_input"], exp.attrs["model_mode"],
+                 exp.attrs["L_I_model_scalar"])
+        expected.append(exp)
+        if observed_i:
+            cor = bias_correct(observed_i[i], exp, names_i[i])
+            if observed_i[i] is not obs:
+                chain += _input_history([observed_i[i]], [f"observed I {lab}"],
+                                        prefix_one=True)
+            cor = stamp(cor.assign_attrs(label=lab), result.attrs["command"], chain)
+            corrected.append(cor)
+    return expected, corrected
+
+
+def _as_list(items) -> list:
+    if items is None:
+        return []
+    if isinstance(items, (str, os.PathLike, xr.Dataset)):
+        return [items]
+    return list(items)
+
+
+def _open_all(items: Sequence[PsInput], what: str) -> tuple[list[xr.Dataset], list[str]]:
+    """PS products from paths or Datasets, and a name for each (its path)."""
+    datasets, names = [], []
+    for i, item in enumerate(items):
+        if isinstance(item, xr.Dataset):
+            name = str(item.encoding.get("source", f"{what.replace(' ', '_')}{i + 1}"))
+            if "power" not in item.variables:
+                raise InputError(f"{name}: has no 'power'; give a ps product (msleak ps)")
+            datasets.append(item)
+        else:
+            name = str(item)
+            datasets.append(open_product(item, "ps", required=["power"]))
+        names.append(name)
+    return datasets, names
+
+
+def _check_options(n_in: int, labels, realisations, n_obs: int, n_corr: int,
+                   obs_labels, k_par_range, k_perp_range, hist_quantile: float, output
+                   ) -> tuple[list[str] | None, list[str] | None]:
+    """The checks of ``msleak leakage`` that need no file; returns the labels as lists."""
+    if n_in == 0:
+        raise InputError("no PS product given")
+    labels = list(labels) if labels is not None else None
+    if labels is not None and len(labels) != n_in:
+        raise InputError(f"{len(labels)} labels for {n_in} PS inputs; give one --labels "
+                         "entry per input")
+    if realisations is not None and len(realisations) != n_in:
+        raise InputError(f"{len(realisations)} realisations for {n_in} PS inputs; give one "
+                         "--realisations entry per input")
+    if labels is not None:
+        keys = list(zip(labels, realisations or [0] * n_in))
+        if len(set(keys)) != len(keys):
+            raise InputError(f"labels must be unique within a realisation, got "
+                             f"{','.join(labels)}; choose other --labels")
+    for option, rng in (("--k-par-range", k_par_range), ("--k-perp-range", k_perp_range)):
+        if rng is not None and not (len(rng) == 2 and 0 <= rng[0] < rng[1]):
+            raise InputError(f"{option} needs 0 <= MIN < MAX, got "
+                             f"{','.join(f'{x:g}' for x in rng)}")
+    if not 0.5 <= hist_quantile <= 1.0:
+        raise InputError(f"--hist-quantile must be in [0.5, 1], got {hist_quantile:g}")
+    if n_obs and n_corr and n_obs != n_corr:
+        raise InputError(f"--correct pairs one to one with --expected: got {n_corr} and "
+                         f"{n_obs} files")
+    if (n_obs or n_corr) and output is None:
+        raise InputError("the expected leakage and corrected spectra are written to files: "
+                         "give an output directory (-o/--output)")
+    obs_labels = list(obs_labels) if obs_labels is not None else None
+    if obs_labels is not None:
+        if len(obs_labels) != max(n_obs, n_corr):
+            raise InputError(f"{len(obs_labels)} --expected-labels for {max(n_obs, n_corr)} "
+                             "observed PS products; give one per --expected file")
+        if len(set(obs_labels)) != len(obs_labels):
+            raise InputError(f"--expected-labels must be unique, got {','.join(obs_labels)}")
+    return labels, obs_labels
+
+
+def _input_history(datasets: Sequence[xr.Dataset], labels: Sequence[str],
+                   prefix_one: bool = False) -> list[str]:
+    """The ``history`` chain of the inputs: one input's chain as it is; for several,
+    every input's chain in turn, each line prefixed by ``[label]``."""
+    if len(datasets) == 1 and not prefix_one:
+        return history_lines(datasets[0].attrs)
+    return [f"[{label}] {line}" for ds, label in zip(datasets, labels)
+            for line in history_lines(ds.attrs)]
 
 
 def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequence[str],
@@ -89,70 +263,107 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
     realisations = [0] * len(datasets) if realisations is None else list(realisations)
     if len(realisations) != len(datasets):
         raise InputError(f"{len(realisations)} realisations for {len(datasets)} inputs")
-    maps, rows, hists, edges, masked = [], [], [], [], []
-    for ds, label, path in zip(datasets, labels, paths):
-        name = str(path)
-        m = leakage_map(ds, negative, name)
-        n_bad = int((m["mask"] != 0).sum())
-        if n_bad:
-            log.info("%s: %d of %d (k_par, k_perp) bins masked", name, n_bad, m["mask"].size)
-        maps.append(m)
-        vox = leakage_voxels(ds, stats_from, negative, k_par_range, k_perp_range, name)
-        if vox.n_masked:
-            log.warning("%s: masked %d of %d %s (%s)", name, vox.n_masked, vox.n_selected,
-                        vox.source, ", ".join(f"{k}: {v}" for k, v in vox.masked.items()))
-        if vox.L.size < 2:
-            raise InputError(f"{name}: only {vox.L.size} valid {vox.source} (of "
-                             f"{vox.n_selected}); P_P is zero or negative almost everywhere")
-        groups = voxel_groups(ds, stats_from, negative, k_par_range, k_perp_range,
-                              bootstrap_block, name)
-        if groups.size != vox.L.size:  # pragma: no cover - guards the selection logic
-            raise RuntimeError(f"{name}: {groups.size} group labels for {vox.L.size} voxels")
-        n_grp = np.unique(groups).size
-        if n_boot > 0 and n_grp < 20:
-            log.warning("%s: only %d independent groups of voxels for the bootstrap; its "
-                        "errors are uncertain (use a smaller bootstrap block?)", name, n_grp)
-        st = leakage_statistics(vox.L, bins, upper_quantile, groups=groups, n_boot=n_boot,
-                                seed=seed)
-        boot = st.boot
-        rows.append({
-            "mean": st.mean, "median": st.median, "std": st.std, "peak": st.peak,
-            "pareto_median": st.pareto_median, "pareto_median_err": st.pareto_median_err,
-            "pareto_median_hist": st.fit_hist.median_percent if st.fit_hist else 0.0,
-            "peak_bin_width": st.peak_bin_width, "n_voxels": st.n, "n_masked": vox.n_masked,
-            "median_err": st.median_err, "mean_err": st.mean_err,
-            "pareto_median_err_iid": st.fit.median_err_percent,
-            "ks_d": st.ks_d, "ks_p": st.ks_p, "ks_p_eff": st.ks_p_eff,
-            "n_eff": st.n_eff, "n_groups": boot.n_groups if boot else 0,
-            "pareto_loc": st.fit.loc, "pareto_scale": st.fit.scale,
-            "fit_method": st.fit.method,
-            "wedge_slope_horizon": float(ds.attrs.get("wedge_slope_horizon", 0.0) or 0.0),
-            "wedge_slope_primary": float(ds.attrs.get("wedge_slope_primary", 0.0) or 0.0),
-        })
-        hists.append(st.hist_counts)
-        edges.append(st.hist_edges)
-        masked.append([vox.masked.get(n, 0) for n in MASK_CODES if n != "valid"])
-        log.info("%s (%s): median L_I %.4g +- %.2g %% (data), %.4g +- %.2g %% (Pareto fit; "
-                 "iid %.2g), %d %s worth %.0f independent, KS D %.3g", name, label,
-                 st.median, st.median_err, st.pareto_median, st.pareto_median_err,
-                 st.fit.median_err_percent, st.n, vox.source, st.n_eff, st.ks_d)
+    options = dict(stats_from=stats_from, negative=negative, bins=bins,
+                   upper_quantile=upper_quantile, k_par_range=k_par_range,
+                   k_perp_range=k_perp_range, n_boot=n_boot,
+                   bootstrap_block=bootstrap_block, seed=seed)
+    per_input = [_input_statistics(ds, label, str(path), **options)
+                 for ds, label, path in zip(datasets, labels, paths)]
+    out = _stack(datasets, [p[0] for p in per_input], labels, paths, realisations)
+    for col in per_input[0][1]:
+        out[col] = ("input", np.asarray([p[1][col] for p in per_input]))
+    _statistics_attrs(out, n_boot)
+    stats = [p[2] for p in per_input]
+    nb = max(st.hist_counts.size for st in stats)
+    out["hist_counts"] = (("input", "hist_bin"), np.array(
+        [np.pad(st.hist_counts, (0, nb - st.hist_counts.size)) for st in stats]))
+    out["hist_edges"] = (("input", "hist_edge"), np.array(
+        [np.pad(st.hist_edges, (0, nb + 1 - st.hist_edges.size), mode="edge")
+         for st in stats]), {"units": "percent"})
+    out["n_masked_by_reason"] = (("input", "mask_reason"),
+                                 np.array([p[3] for p in per_input], dtype=np.int64))
+    out = out.assign_coords(mask_reason=[n for n in MASK_CODES if n != "valid"])
+    for c in _DIMENSIONLESS:
+        out[c].attrs["units"] = "1"
+    out = out.merge(realisation_estimates(out))
+    out.attrs.update(_result_attrs(out, datasets[0], field_name, options))
+    return out
 
+
+def _input_statistics(ds: xr.Dataset, label: str, name: str, *, stats_from, negative,
+                      bins, upper_quantile, k_par_range, k_perp_range, n_boot,
+                      bootstrap_block, seed
+                      ) -> tuple[xr.Dataset, dict, LeakageStatistics, list[int]]:
+    """One input's L_I map, its row of statistics, the statistics, masked counts."""
+    m = leakage_map(ds, negative, name)
+    n_bad = int((m["mask"] != 0).sum())
+    if n_bad:
+        log.info("%s: %d of %d (k_par, k_perp) bins masked", name, n_bad, m["mask"].size)
+    vox = leakage_voxels(ds, stats_from, negative, k_par_range, k_perp_range, name)
+    if vox.n_masked:
+        log.warning("%s: masked %d of %d %s (%s)", name, vox.n_masked, vox.n_selected,
+                    vox.source, ", ".join(f"{k}: {v}" for k, v in vox.masked.items()))
+    if vox.L.size < 2:
+        raise InputError(f"{name}: only {vox.L.size} valid {vox.source} (of "
+                         f"{vox.n_selected}); P_P is zero or negative almost everywhere")
+    groups = voxel_groups(ds, stats_from, negative, k_par_range, k_perp_range,
+                          bootstrap_block, name)
+    n_grp = np.unique(groups).size
+    if n_boot > 0 and n_grp < 20:
+        log.warning("%s: only %d independent groups of voxels for the bootstrap; its "
+                    "errors are uncertain (use a smaller bootstrap block?)", name, n_grp)
+    st = leakage_statistics(vox.L, bins, upper_quantile, groups=groups, n_boot=n_boot,
+                            seed=seed)
+    row = {
+        "mean": st.mean, "median": st.median, "std": st.std, "peak": st.peak,
+        "pareto_median": st.pareto_median, "pareto_median_err": st.pareto_median_err,
+        "pareto_median_hist": st.fit_hist.median_percent if st.fit_hist else 0.0,
+        "peak_bin_width": st.peak_bin_width, "n_voxels": st.n, "n_masked": vox.n_masked,
+        "median_err": st.median_err, "mean_err": st.mean_err,
+        "pareto_median_err_iid": st.fit.median_err_percent,
+        "ks_d": st.ks_d, "ks_p": st.ks_p, "ks_p_eff": st.ks_p_eff,
+        "n_eff": st.n_eff, "n_groups": st.boot.n_groups if st.boot else 0,
+        "pareto_loc": st.fit.loc, "pareto_scale": st.fit.scale, "fit_method": st.fit.method,
+        "wedge_slope_horizon": float(ds.attrs.get("wedge_slope_horizon", 0.0) or 0.0),
+        "wedge_slope_primary": float(ds.attrs.get("wedge_slope_primary", 0.0) or 0.0),
+    }
+    log.info("%s (%s): median L_I %.4g +- %.2g %% (data), %.4g +- %.2g %% (Pareto fit; "
+             "iid %.2g), %d %s worth %.0f independent, KS D %.3g", name, label,
+             st.median, st.median_err, st.pareto_median, st.pareto_median_err,
+             st.fit.median_err_percent, st.n, vox.source, st.n_eff, st.ks_d)
+    return m, row, st, [vox.masked.get(n, 0) for n in MASK_CODES if n != "valid"]
+
+
+def _stack(datasets: Sequence[xr.Dataset], maps: list[xr.Dataset], labels, paths,
+           realisations) -> xr.Dataset:
+    """The inputs' maps on the union k grid, with the coordinates of the ``input`` dim:
+    label, path, realisation, and the product's ``source``, ``column`` and ``fov_deg``."""
     fill = {"L_I": 0.0, "mask": MASK_CODES["not_in_grid"], "power_I": 0.0, "power_P": 0.0}
     grid = xr.concat(maps, dim="input", join="outer", fill_value=fill)
     grid["mask"] = grid["mask"].astype(np.int8)
-    grid["mask"].attrs["long_name"] = f"mask reason code ({_MASK_DOC})"
+    grid["mask"].attrs.update(long_name=f"mask reason code ({_MASK_DOC})",
+                              flag_values=np.array(list(MASK_CODES.values()), np.int8),
+                              flag_meanings=" ".join(MASK_CODES))
     if any(m["k_par"].size != grid["k_par"].size or m["k_perp"].size != grid["k_perp"].size
            for m in maps):
         log.warning("the inputs have different k grids; maps are on the union grid and "
                     "bins outside an input's grid are masked (code %d)",
                     MASK_CODES["not_in_grid"])
-    n_in = len(datasets)
-    out = grid.assign_coords(input=np.arange(n_in), label=("input", list(labels)),
-                             path=("input", [str(p) for p in paths]),
-                             realisation=("input", np.asarray(realisations, np.int64)))
-    for col in rows[0]:
-        values = [r[col] for r in rows]
-        out[col] = ("input", np.asarray(values))
+    out = grid.assign_coords(
+        input=np.arange(len(maps)), label=("input", list(labels)),
+        path=("input", [str(p) for p in paths]),
+        realisation=("input", np.asarray(realisations, np.int64)),
+        source=("input", [str(ds.attrs.get("source", "")) for ds in datasets]),
+        column=("input", [str(ds.attrs.get("column", "")) for ds in datasets]),
+        fov_deg=("input", [float(ds.attrs.get("fov_deg", 0.0) or 0.0) for ds in datasets],
+                 {"units": "deg", "long_name": "field of view of the gridding (0: unknown)"}))
+    out["k_par"].attrs["units"] = "Mpc^-1"
+    out["k_perp"].attrs["units"] = "Mpc^-1"
+    return out
+
+
+def _statistics_attrs(out: xr.Dataset, n_boot: int) -> None:
+    """Units and long names of the per-input statistics."""
     for c in _PERCENT:
         out[c].attrs["units"] = "percent"
     out["pareto_median_err"].attrs["long_name"] = (
@@ -165,21 +376,14 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
                                        "n (pareto_median_err_iid / pareto_median_err)^2")
     out["ks_p"].attrs["long_name"] = "KS p-value of ks_d for n_voxels independent voxels"
     out["ks_p_eff"].attrs["long_name"] = "KS p-value of ks_d for n_eff voxels"
-    out["k_par"].attrs["units"] = "Mpc^-1"
-    out["k_perp"].attrs["units"] = "Mpc^-1"
-    nb = max(len(h) for h in hists)
-    out["hist_counts"] = (("input", "hist_bin"), np.array([np.pad(h, (0, nb - len(h)))
-                                                            for h in hists]))
-    out["hist_edges"] = (("input", "hist_edge"), np.array(
-        [np.pad(e, (0, nb + 1 - len(e)), mode="edge") for e in edges]),
-        {"units": "percent"})
-    reasons = [n for n in MASK_CODES if n != "valid"]
-    out["n_masked_by_reason"] = (("input", "mask_reason"), np.array(masked, dtype=np.int64))
-    out = out.assign_coords(mask_reason=reasons)
-    out = out.merge(realisation_estimates(out))
+
+
+def _result_attrs(out: xr.Dataset, first: xr.Dataset, field_name: str, o: dict) -> dict:
+    """The global attributes of the leakage result (docs/leakage.md "Outputs")."""
     est, spread = field_estimate(out["realisation_estimate"].values)
     est_data, spread_data = field_estimate(out["realisation_estimate_data"].values)
-    out.attrs.update({
+    block, n_boot = o["bootstrap_block"], o["n_boot"]
+    return {
         "field_name": field_name,
         "field_estimate": est, "field_estimate_data": est_data,
         "n_realisations": int(out.sizes["realisation_id"]),
@@ -188,28 +392,26 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
         "field_estimate_spread": _fov_spread(out, "pareto_median"),
         "field_estimate_data_spread": _fov_spread(out, "median"),
         "L_I_definition": "L_I = 100 sqrt(P_I / P_P) percent, P_P = power of Q + iU",
-        "P_P_voxels": (VOXEL_DEFINITION if stats_from == "voxels" else
+        "P_P_voxels": (VOXEL_DEFINITION if o["stats_from"] == "voxels" else
                        "2D bins: P_P = bin mean over both voxels (u,tau), (-u,-tau) of "
                        "every cell and delay (= P_Q + P_U)"),
-        "stats_from": stats_from, "negative_policy": negative,
-        "hist_bins": int(bins), "hist_upper_quantile": float(upper_quantile),
-        "hist_binning": f"{bins} uniform bins of L_I from 0 to its {upper_quantile:g} quantile",
+        "stats_from": o["stats_from"], "negative_policy": o["negative"],
+        "hist_bins": int(o["bins"]), "hist_upper_quantile": float(o["upper_quantile"]),
+        "hist_binning": f"{o['bins']} uniform bins of L_I from 0 to its "
+                        f"{o['upper_quantile']:g} quantile",
         "fit": "Pareto b=1 (scipy.stats.pareto) on W=(L_I/100)^2, loc and scale by maximum "
                "likelihood; pareto_median = 100 sqrt(loc + 2 scale)",
         "errors": (f"block bootstrap, {n_boot} resamples of "
-                   + (f"{bootstrap_block}x{bootstrap_block} blocks of uv cells with all "
-                      "their delays" if stats_from == "voxels" else "k_perp columns")
-                   + f", seed {seed}" if n_boot > 0 else
+                   + (f"{block}x{block} blocks of uv cells with all their delays"
+                      if o["stats_from"] == "voxels" else "k_perp columns")
+                   + f", seed {o['seed']}" if n_boot > 0 else
                    "asymptotic, independent voxels (no bootstrap)"),
-        "n_boot": int(n_boot), "bootstrap_block": int(bootstrap_block),
-        "bootstrap_seed": int(seed),
-        "k_par_range": list(k_par_range) if k_par_range else [],
-        "k_perp_range": list(k_perp_range) if k_perp_range else [],
+        "n_boot": int(n_boot), "bootstrap_block": int(block), "bootstrap_seed": int(o["seed"]),
+        "k_par_range": list(o["k_par_range"]) if o["k_par_range"] else [],
+        "k_perp_range": list(o["k_perp_range"]) if o["k_perp_range"] else [],
         "mask_codes": _MASK_DOC,
-        "units": str(datasets[0]["power"].attrs.get("units",
-                                                    datasets[0].attrs.get("units", ""))),
-    })
-    return out
+        "units": str(first["power"].attrs.get("units", first.attrs.get("units", ""))),
+    }
 
 
 def realisation_estimates(result: xr.Dataset) -> xr.Dataset:
@@ -260,8 +462,8 @@ def voxel_groups(ds: xr.Dataset, source: str = "voxels", negative: NegativePolic
             if "u_cell" not in ds.variables or "v_cell" not in ds.variables:
                 raise InputError(f"{name}: bootstrap blocks of uv cells need u_cell, v_cell")
             u, v = ds["u_cell"].values, ds["v_cell"].values
-            cell = float(ds.attrs.get("cell_lambda", 0) or 0) or _spacing(u, v)
-            if _on_grid(u, v, cell):
+            cell = float(ds.attrs.get("cell_lambda", 0) or 0) or uv_cell_size(u, v)
+            if on_uv_grid(u, v, cell):
                 label = cell_groups(u, v, cell, block)
             else:
                 log.warning("%s: the uv cells are not on a grid of %g wavelengths; the "
@@ -278,310 +480,3 @@ def voxel_groups(ds: xr.Dataset, source: str = "voxels", negative: NegativePolic
         if rng is not None:
             sel = sel & ((x >= rng[0]) & (x <= rng[1]))
     return label[sel & (mask == 0)]
-
-
-def _on_grid(u: np.ndarray, v: np.ndarray, cell: float) -> bool:
-    """True if the cell coordinates are whole multiples of ``cell`` (to 1e-3 cell)."""
-    return bool(all(np.allclose(c / cell, np.rint(c / cell), rtol=0, atol=1e-3)
-                    for c in (np.asarray(u, float), np.asarray(v, float))))
-
-
-def _spacing(u: np.ndarray, v: np.ndarray) -> float:
-    """Smallest positive spacing of the distinct cell coordinates (the cell size)."""
-    steps = [np.diff(np.unique(np.round(np.asarray(c, float), 9))) for c in (u, v)]
-    steps = np.concatenate(steps)
-    steps = steps[steps > 0]
-    return float(steps.min()) if steps.size else 1.0
-
-
-def _pair(i_obs: int, n_obs: int, n_in: int) -> int | None:
-    if n_in == 1:
-        return 0
-    return i_obs if n_obs == n_in else None
-
-
-def predict(result: xr.Dataset, obs: xr.Dataset, i_obs: int, n_obs: int,
-            mode: ModelMode = "auto", rel_error: float | None = None,
-            name: str = "observed PS") -> xr.Dataset:
-    """Expected leakage PS of one observed PS product: (L_I_model / 100)^2 P_P,obs.
-
-    Parameters
-    ----------
-    result : xarray.Dataset
-        Output of :func:`analyse` (the model).
-    obs : xarray.Dataset
-        Observed PS product with Stokes P in ``power`` (and ``counts``; ``power_sph``
-        optional).
-    i_obs, n_obs : int
-        Index of this observed product and how many there are: observed product i pairs
-        with model input i when their numbers agree, or with the only model input.
-    mode : {"auto", "map", "median", "field"}
-        ``map``: the paired input's L_I map (grids must match; masked model bins take the
-        paired median); ``median``: the paired input's fitted median; ``field``: the
-        per-field estimate (mean of fitted medians); ``auto``: map if paired with the
-        same grid, else median if paired, else field.
-    rel_error : float, optional
-        Relative uncertainty of the model L_I; default: the fit's statistical error (map,
-        median), combined with the spread over fields of view (field).
-    """
-    n_in = result.sizes["input"]
-    j = _pair(i_obs, n_obs, n_in)
-    p_p = stokes_power(obs, "power", "P", name).transpose("k_par", "k_perp")
-    k_par, k_perp = obs["k_par"].values, obs["k_perp"].values
-    if "counts" in obs.variables:
-        counts = obs["counts"].transpose("k_par", "k_perp").values.astype(float)
-    else:
-        log.warning("%s: no 'counts'; sample-variance errors assume 1 cell per bin", name)
-        counts = np.ones(p_p.shape)
-    counts = np.where(np.isfinite(p_p.values), counts, 0.0)
-    p_p_val = np.where(counts > 0, np.real(p_p.values), 0.0)
-    grid_ok = False
-    if j is not None:
-        model = _own_grid(result.isel(input=j))
-        grid_ok = ex.same_grid(model["k_par"].values, model["k_perp"].values, k_par, k_perp)
-    if mode == "auto":
-        mode = "map" if grid_ok else ("median" if j is not None else "field")
-    if mode in ("map", "median") and j is None:
-        raise InputError(f"--expected-model {mode} pairs observed PS i with model input i: "
-                         f"give {n_in} observed PS (got {n_obs}) or use --expected-model field")
-    if mode == "map" and not grid_ok:
-        raise InputError(f"{name}: its (k_par, k_perp) grid differs from the model input "
-                         f"{result['label'].values[j]!r}; use --expected-model median or field")
-    filled = np.zeros(p_p.shape, dtype=np.int8)
-    if mode == "field":
-        L_scalar = float(result.attrs["field_estimate"])
-        stat = float(np.sqrt(np.mean(result["pareto_median_err"].values ** 2)))
-        default_rel = _ratio(ex.leakage_model_error(stat, result["pareto_median"].values),
-                             L_scalar)
-        L_model = np.full(p_p.shape, L_scalar)
-        model_label = f"field estimate of {','.join(map(str, result['label'].values))}"
-    else:
-        L_scalar = float(result["pareto_median"].values[j])
-        default_rel = _ratio(float(result["pareto_median_err"].values[j]), L_scalar)
-        model_label = str(result["label"].values[j])
-        if mode == "median":
-            L_model = np.full(p_p.shape, L_scalar)
-        else:
-            mask = model["mask"].values
-            L_model = np.where(mask == 0, model["L_I"].values, L_scalar)
-            filled = (mask != 0).astype(np.int8)
-            if filled.any():
-                log.info("%s: %d masked model bins use the median L_I %.4g %%", name,
-                         int(filled.sum()), L_scalar)
-    rel = default_rel if rel_error is None else float(rel_error)
-    L_err = rel * L_model
-    corr = correlation(obs, "P", name)
-    counts_eff = counts / np.where(k_par[:, None] > 0, corr["c_2d"], corr["c_2d_zero"])
-    leak = ex.expected_leakage_power(p_p_val, L_model)
-    leak_err = ex.expected_leakage_error(p_p_val, counts_eff, L_model, L_err)
-    units = str(obs["power"].attrs.get("units", obs.attrs.get("units", "")))
-    dims = ("k_par", "k_perp")
-    out = xr.Dataset(
-        {
-            "power_P_obs": (dims, p_p_val, {"units": units}),
-            "counts": (dims, counts),
-            "counts_eff": (dims, counts_eff, {"long_name": "effective number of independent "
-                                              "cells, counts / corr_factor_2d"}),
-            "L_I_model": (dims, L_model, {"units": "percent"}),
-            "L_I_model_err": (dims, L_err, {"units": "percent"}),
-            "L_I_model_filled": (dims, filled),
-            "power_leak": (dims, leak, {"units": units,
-                                        "long_name": "(L_I_model/100)^2 P_P,obs"}),
-            "power_leak_err": (dims, leak_err, {"units": units}),
-        },
-        coords={"k_par": ("k_par", k_par, {"units": "Mpc^-1"}),
-                "k_perp": ("k_perp", k_perp, {"units": "Mpc^-1"})},
-    )
-    k, k_edges = _k_bins(obs, k_par, k_perp)
-    if mode != "map" and "power_sph" in obs.variables:
-        # a scalar model scales the observed spherical average exactly
-        pp_sph = np.real(stokes_power(obs, "power_sph", "P", name).values)
-        c_sph = (obs["counts_sph"].values.astype(float) if "counts_sph" in obs.variables
-                 else np.ones(k.size))
-        c_sph = np.where(np.isfinite(pp_sph), c_sph, 0.0)
-        pp_sph = np.where(c_sph > 0, pp_sph, 0.0)
-        sph_source = "power_sph"
-    else:
-        pp_sph, c_sph = ex.spherical_from_bins(p_p_val, counts, k_par, k_perp, k_edges)
-        sph_source = "2D bins"
-    if mode == "map":
-        leak_sph, _ = ex.spherical_from_bins(leak, counts, k_par, k_perp, k_edges)
-        Lsph = np.where(pp_sph > 0, 100 * np.sqrt(np.divide(
-            leak_sph, pp_sph, out=np.zeros_like(pp_sph), where=pp_sph > 0)), L_scalar)
-    else:
-        leak_sph = ex.expected_leakage_power(pp_sph, L_scalar)
-        Lsph = np.full(k.size, L_scalar)
-    out = out.assign_coords(k=("k", k, {"units": "Mpc^-1"}))
-    out["power_P_obs_sph"] = ("k", pp_sph, {"units": units})
-    out["counts_sph"] = ("k", c_sph)
-    out["counts_sph_eff"] = ("k", c_sph / corr["c_sph"])
-    out["power_leak_sph"] = ("k", leak_sph, {"units": units})
-    out["power_leak_sph_err"] = ("k", ex.expected_leakage_error(
-        pp_sph, c_sph / corr["c_sph"], Lsph, rel * Lsph), {"units": units})
-    out.attrs.update({
-        "source": name, "model_mode": mode, "model_input": model_label,
-        "L_I_model_scalar": L_scalar, "L_I_model_rel_error": rel,
-        "spherical_from": sph_source, "units": units,
-        "formula": "P_leak = (L_I_model/100)^2 P_P,obs; sigma_leak^2 = (l^2 |P_P|/sqrt(N))^2 "
-                   "+ (2 l sigma_l P_P)^2, l = L_I_model/100, N = counts / corr_factor",
-        "corr_factor_2d": corr["c_2d"], "corr_factor_2d_kpar0": corr["c_2d_zero"],
-        "corr_factor_sph": corr["c_sph"], "corr_method": corr["method"],
-    })
-    for key in ("wedge_slope_horizon", "wedge_slope_primary", "cosmology", "redshift"):
-        if key in obs.attrs:
-            out.attrs[key] = obs.attrs[key]
-    return out
-
-
-def correlation(ds: xr.Dataset, stokes: str, name: str = "PS product") -> dict:
-    """Voxels per independent sample of a PS product's Stokes ``stokes`` power.
-
-    From the unaveraged power (``power3d`` with ``k_par3d``, ``k_perp_cell``, ``u_cell``,
-    ``v_cell``; for P the mean of each voxel and its mirror ``power3d_P_mirror``, what the
-    P bins average) by :func:`msleak.leakage.expected.correlation_factors` (``method`` =
-    ``measured``); without it, by counting uv cells rather than voxels: the +tau and
-    -tau voxels of a cell count once in a 2D bin (c = 2 for k_par > 0), and in a spherical
-    shell also the window's delay correlation length (``method`` = ``uv-cells``).
-
-    Returns
-    -------
-    dict
-        ``c_2d`` (k_par > 0 bins), ``c_2d_zero`` (the k_par = 0 row), ``c_sph``,
-        ``method``.
-    """
-    need = ("power3d", "k_par3d", "k_perp_cell", "u_cell", "v_cell", "k_perp_lo", "k_perp_hi")
-    if all(v in ds.variables for v in need) and "delay3d" in ds.dims:
-        try:
-            p3 = stokes_power(ds, "power3d", stokes, name).transpose("delay3d", "cell").values
-        except InputError:
-            p3 = None
-        if p3 is not None and stokes == "P":  # the P bins average each voxel and its mirror
-            p3 = (0.5 * (p3 + ds["power3d_P_mirror"].transpose("delay3d", "cell").values)
-                  if "power3d_P_mirror" in ds.variables else None)
-        if p3 is not None:
-            k3 = np.abs(np.asarray(ds["k_par3d"].values, float))
-            k_par = np.asarray(ds["k_par"].values, float)
-            ipar = np.argmin(np.abs(k3[:, None] - k_par[None, :]), axis=1)
-            edges = np.concatenate([ds["k_perp_lo"].values[:1], ds["k_perp_hi"].values])
-            iperp = np.clip(np.digitize(ds["k_perp_cell"].values, edges) - 1, 0,
-                            edges.size - 2)
-            bins = ipar[:, None] * (edges.size + 1) + iperp[None, :]
-            order = np.argsort(np.asarray(ds["delay3d"].values, float))
-            dk = np.empty(order.size, dtype=np.int64)
-            dk[order] = np.arange(order.size) - int(np.argmin(np.abs(
-                np.asarray(ds["delay3d"].values, float)[order])))
-            u, v = ds["u_cell"].values, ds["v_cell"].values
-            cell = float(ds.attrs.get("cell_lambda", 0) or 0) or _spacing(u, v)
-            iu, iv = np.rint(u / cell), np.rint(v / cell)
-            if not _on_grid(u, v, cell):
-                log.warning("%s: the uv cells are not on a grid of %g wavelengths; their "
-                            "uv correlation is not measured", name, cell)
-                iu = iv = None
-            r = ex.correlation_factors(p3, bins, dk, iu, iv)
-            c0 = max(1.0, r["c_2d"] - r["rho_mirror"])
-            log.info("%s: Stokes %s voxels per independent sample %.2g (2D bins), %.2g "
-                     "(spherical)", name, stokes, r["c_2d"], r["c_sph"])
-            return {"c_2d": r["c_2d"], "c_2d_zero": c0, "c_sph": r["c_sph"],
-                    "method": "measured"}
-    window = 1.0
-    if "window" in ds.attrs and "nchan" in ds.attrs:
-        try:
-            from msleak.ps.delay import spectral_window
-
-            window = ex.window_correlation_length(
-                spectral_window(str(ds.attrs["window"]), int(ds.attrs["nchan"])))
-        except (InputError, ValueError):
-            window = 1.0
-    log.warning("%s: no unaveraged power (power3d with cell coordinates): sample-variance "
-                "errors count uv cells, not voxels", name)
-    return {"c_2d": 2.0, "c_2d_zero": 1.0, "c_sph": 2.0 * window, "method": "uv-cells"}
-
-
-def _ratio(a: float, b: float) -> float:
-    return a / b if b > 0 else 0.0
-
-
-def _own_grid(model: xr.Dataset) -> xr.Dataset:
-    """One input's map on its own k grid (drop union-grid rows/columns it lacks)."""
-    inside = model["mask"] != MASK_CODES["not_in_grid"]
-    return model.isel(k_par=inside.any("k_perp").values, k_perp=inside.any("k_par").values)
-
-
-def _k_bins(obs: xr.Dataset, k_par, k_perp) -> tuple[np.ndarray, np.ndarray]:
-    """Spherical k bin centres and edges: the product's ``k`` (edges from ``k_lo``/``k_hi``
-    or midpoints), or, without ``k``, 20 log bins over the 2D grid."""
-    if "k" in obs.coords or "k" in obs.variables:
-        k = np.asarray(obs["k"].values, dtype=float)
-        if "k_lo" in obs.variables and "k_hi" in obs.variables:
-            edges = np.concatenate([obs["k_lo"].values[:1], obs["k_hi"].values]).astype(float)
-        else:
-            edges = ex.edges_from_centres(k)
-        return k, edges
-    kk = np.hypot(np.asarray(k_par)[:, None], np.asarray(k_perp)[None, :])
-    lo = max(kk[kk > 0].min(), 1e-6) if np.any(kk > 0) else 1e-3
-    edges = np.geomspace(lo, kk.max() * 1.0001, 21)
-    return np.sqrt(edges[1:] * edges[:-1]), edges
-
-
-def correct(obs_i: xr.Dataset, expected: xr.Dataset, name: str = "observed PS"
-            ) -> xr.Dataset:
-    """Subtract the expected leakage from the observed Stokes I PS (bias correction).
-
-    Parameters
-    ----------
-    obs_i : xarray.Dataset
-        Observed PS product with Stokes I in ``power`` on the grid of ``expected``.
-    expected : xarray.Dataset
-        Output of :func:`predict`.
-
-    Returns
-    -------
-    xarray.Dataset
-        ``expected`` plus ``power_I_obs``, ``power_I_corrected``,
-        ``power_I_corrected_err`` (k_par, k_perp) and their spherical versions (k).
-    """
-    p_i = stokes_power(obs_i, "power", "I", name).transpose("k_par", "k_perp")
-    if not ex.same_grid(obs_i["k_par"].values, obs_i["k_perp"].values,
-                        expected["k_par"].values, expected["k_perp"].values):
-        raise InputError(f"{name}: its (k_par, k_perp) grid differs from that of the "
-                         f"polarized PS {expected.attrs.get('source', '')}")
-    counts = expected["counts"].values
-    if "counts" in obs_i.variables:
-        counts = np.minimum(counts, obs_i["counts"].transpose("k_par", "k_perp").values)
-    counts = np.where(np.isfinite(p_i.values), counts, 0.0)
-    p_i_val = np.where(counts > 0, np.real(p_i.values), 0.0)
-    cf = correlation(obs_i, "I", name)
-    k_par = expected["k_par"].values
-    counts_eff = counts / np.where(k_par[:, None] > 0, cf["c_2d"], cf["c_2d_zero"])
-    corr, err = ex.bias_correct(p_i_val, counts_eff, expected["power_leak"].values,
-                                expected["power_leak_err"].values)
-    out = expected.copy()
-    units = expected.attrs.get("units", "")
-    dims = ("k_par", "k_perp")
-    out["power_I_obs"] = (dims, p_i_val, {"units": units})
-    out["power_I_corrected"] = (dims, corr, {"units": units,
-                                             "long_name": "P_I,obs - P_leak"})
-    out["power_I_corrected_err"] = (dims, err, {"units": units})
-    k_edges = ex.edges_from_centres(expected["k"].values)
-    if "k_lo" in obs_i.variables and "k_hi" in obs_i.variables:
-        k_edges = np.concatenate([obs_i["k_lo"].values[:1], obs_i["k_hi"].values])
-    if expected.attrs.get("spherical_from") == "power_sph" and "power_sph" in obs_i.variables:
-        pi_sph = np.real(stokes_power(obs_i, "power_sph", "I", name).values)
-        pi_sph = np.where(np.isfinite(pi_sph), pi_sph, 0.0)
-        c_sph = expected["counts_sph"].values
-    else:
-        pi_sph, c_sph = ex.spherical_from_bins(p_i_val, counts, expected["k_par"].values,
-                                               expected["k_perp"].values, k_edges)
-    corr_sph, err_sph = ex.bias_correct(pi_sph, c_sph / cf["c_sph"],
-                                        expected["power_leak_sph"].values,
-                                        expected["power_leak_sph_err"].values)
-    out["power_I_obs_sph"] = ("k", pi_sph, {"units": units})
-    out["power_I_corrected_sph"] = ("k", corr_sph, {"units": units})
-    out["power_I_corrected_sph_err"] = ("k", err_sph, {"units": units})
-    out.attrs["source_I"] = name
-    out.attrs["correction_formula"] = (
-        "P_I,corr = P_I,obs - P_leak; sigma^2 = (|P_I,obs|/sqrt(N))^2 + sigma_leak^2, "
-        "N = counts / corr_factor (of Stokes I)")
-    out.attrs.update({"corr_factor_I_2d": cf["c_2d"], "corr_factor_I_sph": cf["c_sph"],
-                      "corr_method_I": cf["method"]})
-    return out

@@ -1,15 +1,7 @@
-"""Block bootstrap of L_I statistics over groups of correlated voxels.
-
-The voxels of a power spectrum are not independent: the gridding correlates
-neighbouring uv cells, the spectral window correlates neighbouring delays of a cell, and
-P_I and P_P both follow the sky's power from cell to cell. Errors that assume n
-independent voxels are then too small (on the NCP simulation by a factor of 4 to 5).
-:func:`bootstrap_errors` draws whole groups of voxels (a uv cell with all its delays, or
-a block of neighbouring cells, see :func:`cell_groups`) with replacement and recomputes
-the statistics of every resample: the data median, the maximum-likelihood Pareto median
-(:mod:`msleak.leakage.stats`) and the mean. Correlations inside a group are kept, groups
-are assumed independent.
-"""
+"""Block bootstrap of L_I statistics over groups of correlated voxels (a uv cell with all
+its delays, or a block of neighbouring cells): the errors of the data median, the
+maximum-likelihood Pareto median and the mean; docs/leakage.md ("Errors: block
+bootstrap")."""
 
 from __future__ import annotations
 
@@ -20,7 +12,7 @@ import numpy as np
 
 from msleak.errors import InputError
 
-__all__ = ["BootstrapErrors", "bootstrap_errors", "cell_groups"]
+__all__ = ["BootstrapErrors", "bootstrap_errors", "cell_groups", "on_uv_grid", "uv_cell_size"]
 
 log = logging.getLogger(__name__)
 
@@ -172,7 +164,6 @@ def bootstrap_errors(L: np.ndarray, groups: np.ndarray | None = None, n_boot: in
     return BootstrapErrors(sd[0], sd[1], sd[2], int(n_boot), n_groups, int(seed))
 
 
-
 def cell_groups(u: np.ndarray, v: np.ndarray, cell: float, block: int = 1) -> np.ndarray:
     """Group label of every uv cell: blocks of ``block`` x ``block`` neighbouring cells.
 
@@ -198,3 +189,17 @@ def cell_groups(u: np.ndarray, v: np.ndarray, cell: float, block: int = 1) -> np
     iv = np.floor(np.round(np.asarray(v, float) / cell, 6) / block).astype(np.int64)
     _, label = np.unique(np.stack([iu, iv], axis=1), axis=0, return_inverse=True)
     return label.ravel()
+
+
+def on_uv_grid(u: np.ndarray, v: np.ndarray, cell: float) -> bool:
+    """True if the cell coordinates are whole multiples of ``cell`` (to 1e-3 cell)."""
+    return bool(all(np.allclose(c / cell, np.rint(c / cell), rtol=0, atol=1e-3)
+                    for c in (np.asarray(u, float), np.asarray(v, float))))
+
+
+def uv_cell_size(u: np.ndarray, v: np.ndarray) -> float:
+    """Smallest positive spacing of the distinct cell coordinates (the cell size)."""
+    steps = [np.diff(np.unique(np.round(np.asarray(c, float), 9))) for c in (u, v)]
+    steps = np.concatenate(steps)
+    steps = steps[steps > 0]
+    return float(steps.min()) if steps.size else 1.0

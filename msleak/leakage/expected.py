@@ -1,34 +1,7 @@
-"""Expected leakage in an observed field, and bias correction of an observed Stokes I PS.
-
-Expected leakage (docs/leakage.md). With l = L_I / 100 the model fractional leakage (a
-scalar median, or a 2D map on the observed grid), the leakage power spectrum predicted for
-an observed field whose polarized power spectrum is P_P,obs is
-
-    P_leak = l^2 P_P,obs.
-
-Bias correction (beyond the paper). Like a noise-bias subtraction,
-
-    P_I,corr = P_I,obs - P_leak,
-
-with the uncertainty of each bin (N = effective number of independent cells in the bin)
-
-    sigma_PP    = |P_P,obs| / sqrt(N),        sigma_PI = |P_I,obs| / sqrt(N)
-    sigma_leak^2 = (l^2 sigma_PP)^2 + (2 l sigma_l P_P,obs)^2
-    sigma_corr^2 = sigma_PI^2 + sigma_leak^2
-
-The first two are the Gaussian sample variance of an average of N independent cells
-(exact for the auto-power of a Gaussian field; an approximation for cross-power); sigma_l
-is the uncertainty of the leakage model (see :func:`leakage_model_error`). The I and P
-errors are treated as independent. Bins with N = 0 get zero power and zero error and are
-flagged by the caller.
-
-The voxels averaged into a bin are not independent (the gridding correlates neighbouring
-uv cells, the spectral window neighbouring delays, and a bright uv cell is bright at
-every delay), so N is the number of voxels (``counts``) divided by the number of voxels
-per independent sample c >= 1. :func:`correlation_factors` measures c from the
-correlation of the voxel powers with their neighbours; :func:`window_correlation_length`
-gives the window's part alone, used when the product has no unaveraged power.
-"""
+"""Expected leakage P_leak = (L_I / 100)^2 P_P,obs in an observed field, the bias
+correction P_I,obs - P_leak with its error, and the voxels per independent sample of a
+power spectrum, on arrays; formulas in docs/leakage.md ("Expected leakage", "Bias
+correction")."""
 
 from __future__ import annotations
 
@@ -40,7 +13,7 @@ __all__ = [
     "expected_leakage_power",
     "expected_leakage_error",
     "sample_error",
-    "bias_correct",
+    "corrected_power",
     "leakage_model_error",
     "same_grid",
     "edges_from_centres",
@@ -94,7 +67,7 @@ def expected_leakage_error(p_p_obs: np.ndarray, counts: np.ndarray, L_model, L_e
     return np.sqrt((l**2 * s_pp) ** 2 + (2.0 * l * sl * p_p) ** 2)
 
 
-def bias_correct(p_i_obs: np.ndarray, counts: np.ndarray, p_leak: np.ndarray,
+def corrected_power(p_i_obs: np.ndarray, counts: np.ndarray, p_leak: np.ndarray,
                  leak_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Corrected Stokes I power P_I,obs - P_leak and its standard error.
 
@@ -228,6 +201,31 @@ def correlation_factors(p3d: np.ndarray, bin_id: np.ndarray, delay_index: np.nda
         ``c_2d``, ``c_sph`` (floats >= 1), ``rho_uv`` (sum over uv lags), ``rho_delay``
         (sum over delay lags), ``rho_mirror``.
     """
+    rho = _bin_correlation(p3d, bin_id, min_bin)
+    rows = {int(k): r for r, k in enumerate(np.asarray(delay_index).ravel())}
+    rho_uv = 0.0
+    if iu is not None and iv is not None and np.shape(p3d)[1] > 1:
+        rho_uv = _uv_correlation(rho, iu, iv, max_uv_lag)
+    rho_delay = 0.0
+    for lag in range(1, max_delay_lag + 1):
+        pairs = [(r, rows[k + lag]) for k, r in rows.items() if k + lag in rows]
+        if pairs:
+            ra, rb = np.array(pairs).T
+            rho_delay += 2.0 * rho(ra, rb)
+    mirror = np.array([(r, rows[-k], k) for k, r in rows.items() if k > 0 and -k in rows],
+                      dtype=np.int64).reshape(-1, 3)
+    far = mirror[2 * mirror[:, 2] > max_delay_lag]
+    rho_mirror = rho(mirror[:, 0], mirror[:, 1]) if len(mirror) else 0.0
+    rho_far = rho(far[:, 0], far[:, 1]) if len(far) else 0.0
+    c_2d = max(1.0, 1.0 + rho_uv + rho_mirror)
+    c_sph = max(1.0, 1.0 + rho_uv + rho_delay + rho_far)
+    return {"c_2d": c_2d, "c_sph": c_sph, "rho_uv": rho_uv, "rho_delay": rho_delay,
+            "rho_mirror": rho_mirror}
+
+
+def _bin_correlation(p3d: np.ndarray, bin_id: np.ndarray, min_bin: int):
+    """``rho(sel_a, sel_b)``: the mean product of the voxel powers standardised within
+    their 2D bin, over the voxel pairs (sel_a[i], sel_b[i]) (0 for fewer than 10 pairs)."""
     p = np.real(np.asarray(p3d, dtype=np.complex128 if np.iscomplexobj(p3d) else float))
     b = np.asarray(bin_id)
     ok = (b >= 0) & np.isfinite(p)
@@ -244,7 +242,6 @@ def correlation_factors(p3d: np.ndarray, bin_id: np.ndarray, delay_index: np.nda
     z = np.full(p.shape, np.nan)
     use = ok & good[lab]
     z[use] = (p[use] - mean[lab][use]) / np.sqrt(var[lab][use])
-
     # standardising within a bin makes two independent voxels of the same bin correlate
     # by -1/(n - 1); that bias is added back pair by pair
     bias = 1.0 / np.maximum(cnt - 1, 1)
@@ -254,36 +251,25 @@ def correlation_factors(p3d: np.ndarray, bin_id: np.ndarray, delay_index: np.nda
         prod = prod[np.isfinite(prod)]
         return float(prod.mean()) if prod.size >= 10 else 0.0
 
-    rows = {int(k): r for r, k in enumerate(np.asarray(delay_index).ravel())}
-    rho_uv = 0.0
-    if iu is not None and iv is not None and p.shape[1] > 1:
-        iu = np.asarray(iu, np.int64) - int(np.min(iu))
-        iv = np.asarray(iv, np.int64) - int(np.min(iv))
-        span = int(iv.max()) + 2 * max_uv_lag + 1
-        key = iu * span + iv
-        order = np.argsort(key)
-        skey = key[order]
-        for du in range(0, max_uv_lag + 1):
-            for dv in range(-max_uv_lag, max_uv_lag + 1):
-                if (du == 0 and dv <= 0) or du * du + dv * dv > max_uv_lag**2:
-                    continue               # half of the lags; the other half mirrors them
-                want = key + du * span + dv
-                pos = np.clip(np.searchsorted(skey, want), 0, skey.size - 1)
-                has = skey[pos] == want
-                if has.any():
-                    rho_uv += 2.0 * rho((slice(None), has), (slice(None), order[pos[has]]))
-    rho_delay = 0.0
-    for lag in range(1, max_delay_lag + 1):
-        pairs = [(r, rows[k + lag]) for k, r in rows.items() if k + lag in rows]
-        if pairs:
-            ra, rb = np.array(pairs).T
-            rho_delay += 2.0 * rho(ra, rb)
-    mirror = np.array([(r, rows[-k], k) for k, r in rows.items() if k > 0 and -k in rows],
-                      dtype=np.int64).reshape(-1, 3)
-    far = mirror[2 * mirror[:, 2] > max_delay_lag]
-    rho_mirror = rho(mirror[:, 0], mirror[:, 1]) if len(mirror) else 0.0
-    rho_far = rho(far[:, 0], far[:, 1]) if len(far) else 0.0
-    c_2d = max(1.0, 1.0 + rho_uv + rho_mirror)
-    c_sph = max(1.0, 1.0 + rho_uv + rho_delay + rho_far)
-    return {"c_2d": c_2d, "c_sph": c_sph, "rho_uv": rho_uv, "rho_delay": rho_delay,
-            "rho_mirror": rho_mirror}
+    return rho
+
+
+def _uv_correlation(rho, iu: np.ndarray, iv: np.ndarray, max_uv_lag: int) -> float:
+    """Sum of ``rho`` over the uv lags within ``max_uv_lag`` cells (same delay)."""
+    iu = np.asarray(iu, np.int64) - int(np.min(iu))
+    iv = np.asarray(iv, np.int64) - int(np.min(iv))
+    span = int(iv.max()) + 2 * max_uv_lag + 1
+    key = iu * span + iv
+    order = np.argsort(key)
+    skey = key[order]
+    total = 0.0
+    for du in range(0, max_uv_lag + 1):
+        for dv in range(-max_uv_lag, max_uv_lag + 1):
+            if (du == 0 and dv <= 0) or du * du + dv * dv > max_uv_lag**2:
+                continue               # half of the lags; the other half mirrors them
+            want = key + du * span + dv
+            pos = np.clip(np.searchsorted(skey, want), 0, skey.size - 1)
+            has = skey[pos] == want
+            if has.any():
+                total += 2.0 * rho((slice(None), has), (slice(None), order[pos[has]]))
+    return total

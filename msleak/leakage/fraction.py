@@ -1,29 +1,7 @@
-"""Fractional leakage L_I = 100 sqrt(P_I / P_P) per 2D bin and per 3D voxel (docs/science.md).
-
-Voxels cover the full uv plane: P = Q + iU is not Hermitian, so every cell (u, tau) of the
-Hermitian half in ``power3d`` stands for two P voxels, (u, tau) and (-u, -tau) (the PS
-product's ``power3d_P_mirror``), each with its own P_P = |P~|^2 and the same P_I
-(Stokes I is Hermitian). Each voxel's W = P_I / P_P is then a ratio of two exponential
-variables for Gaussian I and P (:mod:`msleak.leakage.stats`).
-
-Masking convention (never a division by zero, never a NaN in the output): a bin or voxel
-gets a non-zero reason code in ``mask`` and L_I = 0 there when
-
-====  ==================  ==========================================================
-code  name                meaning
-====  ==================  ==========================================================
-0     ``valid``           L_I is defined
-1     ``empty``           no 3D cell was averaged into the bin (``counts`` = 0)
-2     ``nonfinite``       P_I or P_P is NaN or infinite
-3     ``nonpositive_pp``  P_P <= 0 (zero polarized power, or a negative cross-power)
-4     ``negative_pi``     P_I < 0 (cross-power only) and ``negative="mask"``
-5     ``not_in_grid``     the bin is not in this input's k grid (several inputs)
-====  ==================  ==========================================================
-
-With ``negative="clip"`` a negative P_I (possible only for cross-power, P = Re(V_a V_b*))
-is set to zero, i.e. L_I = 0, instead of being masked; a non-positive P_P is always masked
-because the ratio is then undefined.
-"""
+"""Fractional leakage L_I = 100 sqrt(P_I / P_P) per 2D bin and per 3D voxel of the full uv
+plane (each cell (u, tau) of ``power3d`` and its mirror (-u, -tau) in
+``power3d_P_mirror``), with the mask reason codes of :data:`MASK_CODES`; docs/leakage.md
+("Masks", "Statistics") and docs/science.md."""
 
 from __future__ import annotations
 

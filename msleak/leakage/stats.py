@@ -1,54 +1,8 @@
-"""Statistics of the voxel distribution of L_I, and its Pareto model (docs/science.md).
-
-Model. If Stokes I and P = Q + iU of a voxel are independent circular complex Gaussians
-of variances sigma_I^2 and sigma_P^2, then P_I and P_P are exponential and their ratio
-W = (L_I / 100)^2 = P_I / P_P has the CDF
-
-    F(w) = w / (w + a^2),   a^2 = sigma_I^2 / sigma_P^2,
-
-a Pareto distribution of shape b = 1 (``scipy.stats.pareto`` with ``b = 1``,
-``loc = -a^2``, ``scale = a^2``). Its median is loc + 2 scale = a^2, so the median
-L_I is 100 a. In L_I the density is f(l) = 2 l A^2 / (l^2 + A^2)^2 with A = 100 a: the
-mode is A / sqrt(3), the mean is A pi / 2 and the variance is infinite (the sample
-standard deviation is reported because the paper does, but it does not converge).
-This needs P_P = |P~|^2 of one voxel of the full uv plane (:mod:`msleak.leakage.fraction`):
-the symmetric P_Q + P_U = (|P~(u, tau)|^2 + |P~(-u, -tau)|^2) / 2 is Gamma distributed
-(shape 2), W then has the CDF 1 - (1 + w / (2 a^2))^-2 and its median L_I is
-100 a sqrt(2 (sqrt 2 - 1)) = 0.91 x 100 a.
-
-Fit. We fit loc and scale (b fixed to 1) by maximum likelihood to the voxel sample
-itself, not to a histogram, because it uses every voxel and needs no binning choice. The
-likelihood grows with scale up to the support edge, so the maximum has loc + scale =
-min(w) and the scale s solves the score equation
-
-    sum_i s / (w_i - min(w) + s) = n / 2,
-
-whose left side increases monotonically in s: the root is unique whenever fewer than
-half of the values equal the minimum. We call ``scipy.stats.pareto.fit(w, fb=1)`` with
-starting values from the model (loc = min - s0, scale = s0, s0 = median - min), verify
-that its answer satisfies the support condition and the score equation, and otherwise
-solve the score equation with a bracketing root finder (which always converges). Under
-the model the standard error of the fitted median a^2 is a^2 sqrt(3 / n), so the relative
-error of the median L_I is sqrt(3 / n) / 2 (0.27 % for 10^5 voxels). A binned
-maximum-likelihood fit to the histogram (the paper's wording) is provided as
-:func:`fit_pareto_histogram` for comparison (its median is stored as
-``pareto_median_hist``): on 20 realisations of 10^5 model voxels the maximum-likelihood
-median scattered by 0.25 % with no measurable bias, the binned (Poisson) histogram fit by
-0.24 %, the data median by 0.26 %, and the two fits differed by at most 0.08 %.
-
-Errors. The asymptotic error above assumes independent voxels, but voxels of a power
-spectrum are not: the gridding correlates neighbouring uv cells, the spectral window
-correlates neighbouring delays, and P_I and P_P both follow the sky's power. The errors
-reported are therefore a block bootstrap (:func:`bootstrap_errors`): whole groups of
-voxels (a uv cell with all its delays, or a block of neighbouring cells) are drawn with
-replacement, and the data median, the fitted median and the mean are recomputed for
-every resample; their standard deviations are the errors. The asymptotic error is kept
-as ``median_err_w`` of :class:`ParetoFit` (``pareto_median_err_iid`` in the tables), and
-n_eff = n (iid error / bootstrap error)^2 says how many independent voxels the sample is
-worth. The goodness of fit of the Pareto model is the Kolmogorov-Smirnov distance D
-between the sample and the fitted CDF (:func:`pareto_ks`), with its p-value for n
-independent voxels and for n_eff voxels.
-"""
+"""Statistics of the voxel distribution of L_I and its Pareto (b = 1) model: mean, median,
+histogram peak, maximum-likelihood and histogram fits of W = (L_I / 100)^2, the
+Kolmogorov-Smirnov distance of the fit, and the per-field estimate. The model, the fit
+and measurements of both are in docs/leakage.md ("Pareto model", "Fit") and
+docs/science.md."""
 
 from __future__ import annotations
 
@@ -56,6 +10,8 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
+from scipy.optimize import brentq, minimize
 
 from msleak.errors import InputError
 from msleak.leakage.bootstrap import BootstrapErrors, bootstrap_errors
@@ -158,8 +114,6 @@ def fit_pareto(w: np.ndarray, use_scipy: bool = True) -> ParetoFit:
         return ParetoFit(wmin, 0.0, wmin, 0.0, "degenerate", n)
     s0 = float(np.median(d))
     if use_scipy:
-        from scipy import stats
-
         try:
             _, loc, scale = stats.pareto.fit(w, fb=1, loc=wmin - s0, scale=s0)
             loc, scale = float(loc), float(scale)
@@ -173,8 +127,6 @@ def fit_pareto(w: np.ndarray, use_scipy: bool = True) -> ParetoFit:
             return ParetoFit(loc, scale, loc + 2 * scale, scale * np.sqrt(3.0 / n),
                              "ml-scipy", n)
         log.debug("scipy pareto.fit did not reach the MLE; solving the score equation")
-    from scipy.optimize import brentq
-
     # score(s) increases from n0/n - 1/2 < 0 (s -> 0) to 1/2 (s -> inf): bracket the root
     lo = hi = s0 if s0 > 0 else float(d[d > 0].min())
     while _score(lo, d) > 0:
@@ -201,9 +153,6 @@ def fit_pareto_histogram(w: np.ndarray, edges_w: np.ndarray) -> ParetoFit:
     edges_w : ndarray (nbin + 1,)
         Increasing bin edges in W.
     """
-    from scipy import stats
-    from scipy.optimize import minimize
-
     w = _check_w(w)
     n = w.size
     counts, _ = np.histogram(w, edges_w)
@@ -258,8 +207,6 @@ def pareto_ks(w: np.ndarray, fit: ParetoFit, n_eff: float | None = None
     p_eff : float
         The same for ``n_eff`` samples (NaN if not given).
     """
-    from scipy import stats
-
     w = np.sort(np.asarray(w, dtype=np.float64).ravel())
     n = w.size
     if fit.scale <= 0 or n == 0:
@@ -393,8 +340,6 @@ def pareto_density_percent(l: np.ndarray, fit: ParetoFit) -> np.ndarray:
 
     f_L(l) = f_W(w) dw/dl with w = (l / 100)^2, dw/dl = 2 l / 100^2.
     """
-    from scipy import stats
-
     l = np.asarray(l, dtype=np.float64)
     if fit.scale <= 0:
         return np.zeros_like(l)

@@ -8,15 +8,16 @@
   overlaps detected.
 
 The numeric kernels stay pure; the chunk tasks live beside the code they parallelise
-(:mod:`msleak.predict.engine`, :mod:`msleak.ps.uvcube`), the driver that writes or folds
+(:mod:`msleak.predict.chunks`, :mod:`msleak.ps.grid_tasks`), the driver that writes or folds
 their results runs in the calling process. dask.distributed is imported only for a
 scheduler address.
 """
 
 from msleak.parallel.multims import FrequencyLayout, frequency_layout
 from msleak.parallel.runner import (CASACORE_LOCK, LOCAL_SCHEDULERS, Runner, WorkerLost,
-                                    check_scheduler, cpu_count, open_runner, task_threads)
+                                    check_scheduler, cpu_count, open_runner, parse_memory,
+                                    task_threads)
 
-__all__ = ["Runner", "open_runner", "check_scheduler", "task_threads", "cpu_count",
+__all__ = ["Runner", "open_runner", "check_scheduler", "parse_memory", "task_threads", "cpu_count",
            "CASACORE_LOCK", "WorkerLost", "LOCAL_SCHEDULERS", "FrequencyLayout",
            "frequency_layout"]

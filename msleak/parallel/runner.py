@@ -37,12 +37,15 @@ from typing import Any, Callable, Iterable, Iterator
 
 from msleak.errors import ConfigurationError, InputError
 
-__all__ = ["Runner", "open_runner", "check_scheduler", "task_threads", "cpu_count",
-           "CASACORE_LOCK", "WorkerLost", "LOCAL_SCHEDULERS"]
+__all__ = ["Runner", "open_runner", "check_scheduler", "parse_memory", "task_threads",
+           "cpu_count", "CASACORE_LOCK", "WorkerLost", "LOCAL_SCHEDULERS"]
 
 log = logging.getLogger(__name__)
 
 LOCAL_SCHEDULERS = ("threads", "processes", "sync")
+_MEMORY_UNITS = {"": 1, "B": 1, "K": 1024, "KB": 1024, "KIB": 1024, "M": 1024**2,
+                 "MB": 1024**2, "MIB": 1024**2, "G": 1024**3, "GB": 1024**3, "GIB": 1024**3,
+                 "T": 1024**4, "TB": 1024**4, "TIB": 1024**4}
 _ADDRESS = re.compile(r"^(tcp|tls|ucx|inproc|ws|wss)://\S+$|^[A-Za-z0-9_.\-]+:\d+$")
 
 #: Serialises casacore calls made by tasks of the threaded scheduler (casacore is not
@@ -78,6 +81,22 @@ def check_scheduler(text: str) -> str:
         return value
     raise InputError(f"--scheduler {text!r}: use threads, processes, sync or a dask "
                      "scheduler address such as tcp://host:8786")
+
+
+def parse_memory(value: str | float) -> int:
+    """A memory size in bytes: a number of bytes, or ``"2GB"``, ``"512M"``, ``"1.5G"``
+    (binary units)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        number, unit = float(value), ""
+    else:
+        match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*",
+                             str(value))
+        if not match or match.group(2).upper() not in _MEMORY_UNITS:
+            raise InputError(f"{value!r} is not a memory size (e.g. 2GB, 512MB, 4e9)")
+        number, unit = float(match.group(1)), match.group(2).upper()
+    if not number > 0:
+        raise InputError("--memory-limit must be positive")
+    return int(number * _MEMORY_UNITS[unit])
 
 
 def _numba_threads(n: int):

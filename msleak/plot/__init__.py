@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["new_figure", "save_figure"]
+__all__ = ["new_figure", "save_figure", "figure_formats"]
 
 
 def _pyplot():
@@ -19,6 +19,13 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def figure_formats() -> list[str]:
+    """File name suffixes (without the dot) that figures can be saved as."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return sorted(FigureCanvasBase.get_supported_filetypes())
 
 
 def new_figure(*args, **kwargs):

@@ -1,5 +1,6 @@
 """Figures of ``msleak leakage``: L_I maps beside P_P and P_I, L_I histograms with the
-Pareto model, and spherical spectra of the expected leakage and of the bias correction."""
+Pareto model, and spherical spectra of the expected leakage and of the bias correction.
+Titles name the field, and each input by its label, MS column and gridded field of view."""
 
 from __future__ import annotations
 
@@ -10,13 +11,37 @@ from typing import Sequence
 import numpy as np
 import xarray as xr
 
+from msleak.leakage.stats import ParetoFit, pareto_density_percent
 from msleak.plot import new_figure, save_figure
 
 __all__ = ["plot_leakage_maps", "plot_leakage_histograms", "plot_expected_spherical",
-           "plot_corrected_spherical"]
+           "plot_corrected_spherical", "field_title", "input_title"]
 
 _KPERP = r"$k_\perp$ [Mpc$^{-1}$]"
 _KPAR = r"$k_\parallel$ [Mpc$^{-1}$]"
+
+
+def field_title(result: xr.Dataset) -> str:
+    """The field: ``field_name``, else the names of the inputs' sources (MS or images)."""
+    name = str(result.attrs.get("field_name", ""))
+    if name or "source" not in result.coords:
+        return name
+    sources = dict.fromkeys(Path(s.split(";")[0].strip()).name
+                            for s in map(str, result["source"].values) if s)
+    return ", ".join(sources)
+
+
+def input_title(result: xr.Dataset, i: int) -> str:
+    """One input: its label, MS column and gridded field of view, e.g.
+    ``15deg (MODEL_15DEG, gridded FoV 5.2 deg)``."""
+    r = result.isel(input=i)
+    extra = []
+    if "column" in r.coords and str(r["column"].values):
+        extra.append(str(r["column"].values))
+    if "fov_deg" in r.coords and float(r["fov_deg"]) > 0:
+        extra.append(f"gridded FoV {float(r['fov_deg']):.2g} deg")
+    label = str(r["label"].values)
+    return f"{label} ({', '.join(extra)})" if extra else label
 
 
 def _unit_tex(units: str) -> str:
@@ -128,11 +153,11 @@ def plot_leakage_maps(result: xr.Dataset, path: str | os.PathLike, pdf: bool = T
             _tidy_log_axis(cb.ax.yaxis, norm.vmin, norm.vmax)
             if i == n - 1:
                 ax.set_xlabel(_KPERP)
-            ax.set_ylabel(f"{r['label'].values}\n{_KPAR}" if j == 0 else _KPAR)
+            ax.set_ylabel(f"{input_title(result, i)}\n{_KPAR}" if j == 0 else _KPAR)
             if i == 0:
                 ax.set_title(("polarized power $P_P$", "Stokes I power $P_I$",
                               r"leakage $L_I = 100\sqrt{P_I/P_P}$")[j])
-    name = result.attrs.get("field_name", "")
+    name = field_title(result)
     if name:
         fig.suptitle(name)
     return save_figure(fig, path, pdf=pdf)
@@ -141,8 +166,6 @@ def plot_leakage_maps(result: xr.Dataset, path: str | os.PathLike, pdf: bool = T
 def plot_leakage_histograms(result: xr.Dataset, path: str | os.PathLike,
                             pdf: bool = True) -> Path:
     """Histogram (density) of L_I per input with the fitted Pareto model and both medians."""
-    from msleak.leakage.stats import ParetoFit, pareto_density_percent
-
     n = result.sizes["input"]
     ncol = min(n, 3)
     nrow = int(np.ceil(n / ncol))
@@ -170,7 +193,7 @@ def plot_leakage_histograms(result: xr.Dataset, path: str | os.PathLike,
         ax.set_xlabel(r"$L_I$ [%]")
         if i % ncol == 0:
             ax.set_ylabel(r"probability density [%$^{-1}$]")
-        ax.set_title(str(r["label"].values))
+        ax.set_title(input_title(result, i), fontsize=9)
         ax.legend(loc="upper right", fontsize=8)
         med_err = f" ± {float(r['median_err']):.1g}" if "median_err" in r else ""
         ks = (f"\nKS D = {float(r['ks_d']):.3f} (p = {float(r['ks_p_eff']):.2g})"
@@ -183,7 +206,7 @@ def plot_leakage_histograms(result: xr.Dataset, path: str | os.PathLike,
                 bbox=dict(boxstyle="round", facecolor="white", edgecolor="0.6", alpha=0.9))
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
-    name = result.attrs.get("field_name", "")
+    name = field_title(result)
     fig.suptitle(f"{name + ': ' if name else ''}per-field estimate "
                  f"{result.attrs['field_estimate']:.3g} % (mean of fitted medians); "
                  f"histogram: {result.attrs.get('hist_binning', '')}".replace("L_I", "$L_I$"),

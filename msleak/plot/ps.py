@@ -1,4 +1,5 @@
-"""Power-spectrum figures: 2D PS panels with wedge lines, 1D and spherical PS."""
+"""Power-spectrum figures: 2D PS panels with wedge lines, 1D PS of several inputs
+(docs/ps.md "Figures")."""
 
 from __future__ import annotations
 
@@ -10,10 +11,18 @@ import numpy as np
 
 from msleak.plot import new_figure, save_figure
 
-__all__ = ["plot_ps2d", "plot_ps1d", "plot_ps_sph"]
+__all__ = ["plot_ps2d", "plot_ps1d"]
 
-_UNIT_TEX = {"mK^2 Mpc^3": r"mK$^2$ Mpc$^3$", "Jy^2": r"Jy$^2$", "mK^2": r"mK$^2$",
-             "Jy^2 Mpc^-3": r"Jy$^2$ Mpc$^{-3}$"}
+_UNIT_TEX = {"mK^2 Mpc^3": r"mK$^2$ Mpc$^3$", "mK^2 h^-3 Mpc^3": r"mK$^2$ $h^{-3}$ Mpc$^3$",
+             "Jy^2": r"Jy$^2$", "mK^2": r"mK$^2$", "Jy^2 Mpc^-3": r"Jy$^2$ Mpc$^{-3}$",
+             "Jy^2 h^3 Mpc^-3": r"Jy$^2$ $h^3$ Mpc$^{-3}$", "Mpc^-1": r"Mpc$^{-1}$",
+             "h Mpc^-1": r"$h$ Mpc$^{-1}$"}
+#: percentiles of a panel's finite positive values that set its colour limits
+_COLOUR_PERCENTILES = (1.0, 99.5)
+#: how the inputs of a 1D PS figure are told apart: line style, open marker, and line
+#: width and marker size shrinking from the first input on (overlapping curves stay visible)
+_LINESTYLES = ("-", "--", ":", "-.")
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
 
 
 def _open(ps):
@@ -22,6 +31,10 @@ def _open(ps):
 
         return open_product(ps, "ps")
     return ps
+
+
+def _tex(unit: str) -> str:
+    return _UNIT_TEX.get(unit, unit)
 
 
 def _edges(centres: np.ndarray) -> np.ndarray:
@@ -43,117 +56,129 @@ def _nice_log_ticks(axis, lo: float, hi: float) -> None:
         axis.set_minor_formatter(NullFormatter())
 
 
-def plot_ps2d(ps, path, stokes: Sequence[str] = ("I", "Q", "U", "P"),
-              quantity: str = "power", vmin: float | None = None, vmax: float | None = None,
-              pdf: bool = False, title: str | None = None) -> Path:
-    """2D PS (k_par vs k_perp), one panel per Stokes, log colour, both wedge lines.
+def describe_input(ds) -> str:
+    """Field, field of view and column of a ps product, from its attributes."""
+    attrs = ds.attrs
+    name = attrs.get("field_name") or ", ".join(
+        Path(part.strip()).name for part in str(attrs.get("source", "") or "?").split(";"))
+    parts = [str(name)]
+    if attrs.get("fov_deg"):
+        parts.append(f"FoV {float(attrs['fov_deg']):.3g} deg")
+    if attrs.get("column"):
+        parts.append(f"column {attrs['column']}")
+    return ", ".join(parts)
 
-    ``quantity`` is ``power`` (mK^2 Mpc^3 or Jy^2) or ``delta2`` (k_perp^2 k_par P/(2 pi)^2).
-    The k_par = 0 row is drawn at half the first non-zero k_par (log axes).
+
+def colour_limits(values: np.ndarray) -> tuple[float, float, str]:
+    """Log colour limits of one panel from its own finite positive values (percentiles
+    ``_COLOUR_PERCENTILES``) and the colour bar's ``extend`` for values beyond them."""
+    good = values[np.isfinite(values) & (values > 0)]
+    if good.size == 0:
+        return 1.0, 10.0, "neither"
+    lo, hi = np.percentile(good, _COLOUR_PERCENTILES)
+    if not hi > lo:
+        lo, hi = lo / 2, hi * 2
+    extend = {(False, False): "neither", (True, False): "min", (False, True): "max",
+              (True, True): "both"}[(bool(good.min() < lo), bool(good.max() > hi))]
+    return float(lo), float(hi), extend
+
+
+def _wedges(ax, ds, xx: np.ndarray, y_lo: float) -> None:
+    for name, style in (("horizon", "-"), ("primary", "--")):
+        slope = ds.attrs.get(f"wedge_slope_{name}")
+        if not slope:
+            continue
+        label = ("horizon (90$^\\circ$)" if name == "horizon" else
+                 f"primary ({ds.attrs.get('primary_theta_deg', 0):.1f}$^\\circ$)")
+        if slope * xx[-1] < y_lo:
+            label += ", below axis"
+        ax.plot(xx, slope * xx, style, color="white", lw=1.6, label=label)
+
+
+def plot_ps2d(ps, path, stokes: Sequence[str] = ("I", "Q", "U", "P"),
+              quantity: str = "power", pdf: bool = False, title: str | None = None) -> Path:
+    """2D PS (k_par vs k_perp), one panel per Stokes with its own log colour scale
+    (:func:`colour_limits`), both wedge lines; the title names field, FoV and column.
+
+    ``quantity`` is ``power`` or ``delta2`` (k_perp^2 k_par P/(2 pi)^2). The k_par = 0 row
+    is drawn at half the first non-zero k_par (log axes).
     """
     from matplotlib.colors import LogNorm
 
     ds = _open(ps)
     data = ds[quantity]
-    units = _UNIT_TEX.get(data.attrs.get("units", ""), data.attrs.get("units", ""))
-    kperp_lo, kperp_hi = ds["k_perp_lo"].values, ds["k_perp_hi"].values
+    units, k_units = _tex(data.attrs.get("units", "")), _tex(ds["k_par"].attrs.get("units", ""))
+    bounds = ds["k_perp_bounds"].values
+    x_edges = np.concatenate([bounds[:, 0], bounds[-1:, 1]])
+    if x_edges[0] <= 0:
+        x_edges[0] = x_edges[1] / 2
     kpar = ds["k_par"].values.copy()
     if kpar.size > 1 and kpar[0] == 0:
         kpar[0] = kpar[1] / 2
-    x_edges = np.concatenate([kperp_lo, kperp_hi[-1:]])
-    if x_edges[0] <= 0:
-        x_edges[0] = x_edges[1] / 2
     y_edges = np.exp(_edges(np.log(kpar)))
-    values = [data.sel(stokes=s).values for s in stokes]
-    finite = np.concatenate([v[np.isfinite(v) & (v > 0)].ravel() for v in values] + [[1.0]])
-    vmax = vmax or float(np.nanmax(finite))
-    vmin = vmin or max(float(np.nanpercentile(finite, 2)), vmax * 1e-8)
     n = len(stokes)
-    fig, axes = new_figure(1, n, figsize=(3.3 * n + 1.2, 3.6), sharey=True, squeeze=False,
+    fig, axes = new_figure(1, n, figsize=(3.6 * n + 0.6, 3.8), sharey=True, squeeze=False,
                            constrained_layout=True)
-    slopes = {"horizon": ds.attrs.get("wedge_slope_horizon"),
-              "primary": ds.attrs.get("wedge_slope_primary")}
     xx = np.geomspace(x_edges[0], x_edges[-1], 50)
-    mesh = None
-    for ax, s, v in zip(axes[0], stokes, values):
-        vv = np.where(np.isfinite(v) & (v > 0), v, np.nan)
-        mesh = ax.pcolormesh(x_edges, y_edges, vv, norm=LogNorm(vmin=vmin, vmax=vmax),
-                             cmap="viridis", shading="flat")
-        for name, style in (("horizon", "-"), ("primary", "--")):
-            if slopes[name]:
-                label = ("horizon (90$^\\circ$)" if name == "horizon" else
-                         f"primary ({ds.attrs.get('primary_theta_deg', 0):.1f}$^\\circ$)")
-                if slopes[name] * x_edges[-1] < y_edges[0]:
-                    label += ", below axis"
-                ax.plot(xx, slopes[name] * xx, style, color="white", lw=1.6, label=label)
+    label = r"$P(k_\perp, k_\parallel)$" if quantity == "power" else r"$\Delta^2$"
+    for ax, s in zip(axes[0], stokes):
+        v = data.sel(stokes=s).values
+        lo, hi, extend = colour_limits(v)
+        good = np.isfinite(v) & (v > 0)
+        mesh = ax.pcolormesh(x_edges, y_edges, np.where(good, v, np.nan),
+                             norm=LogNorm(vmin=lo, vmax=hi), cmap="viridis", shading="flat")
+        if good.any():
+            fig.colorbar(mesh, ax=ax, extend=extend, pad=0.01, label=f"{label} [{units}]")
+        else:
+            ax.text(0.5, 0.5, "no positive power", transform=ax.transAxes, ha="center")
+        _wedges(ax, ds, xx, y_edges[0])
         ax.set_xscale("log")
         ax.set_yscale("log")
         _nice_log_ticks(ax.xaxis, x_edges[0], x_edges[-1])
         ax.set_xlim(x_edges[0], x_edges[-1])
         ax.set_ylim(y_edges[0], y_edges[-1])
         ax.set_title(f"Stokes {s}" if s != "P" else "P = Q + iU", fontsize=11)
-        ax.set_xlabel(r"$k_\perp$ [Mpc$^{-1}$]")
-    axes[0][0].set_ylabel(r"$k_\parallel$ [Mpc$^{-1}$]")
+        ax.set_xlabel(rf"$k_\perp$ [{k_units}]")
+    axes[0][0].set_ylabel(rf"$k_\parallel$ [{k_units}]")
     axes[0][0].legend(loc="lower right", fontsize=8, framealpha=0.5)
-    label = (r"$P(k_\perp, k_\parallel)$" if quantity == "power" else r"$\Delta^2$")
-    fig.colorbar(mesh, ax=list(axes[0]), label=f"{label} [{units}]", pad=0.01)
-    extra = (f"z = {ds.attrs.get('redshift', 0):.2f}, window {ds.attrs.get('window', '?')}"
-             + (", cross-power" if ds.attrs.get("cross_power") else ""))
+    extra = (f"{describe_input(ds)}; z = {ds.attrs.get('redshift', 0):.2f}, window "
+             f"{ds.attrs.get('window', '?')}" + (", cross-power" if ds.attrs.get("cross_power")
+                                                 else ""))
     fig.suptitle(f"{title}  ({extra})" if title else extra, fontsize=10)
     return save_figure(fig, path, pdf=pdf)
 
 
-def _plot_spectra(ax, inputs, variable: str, coord: str, stokes, styles, positive_k: bool):
-    """One line per (input, Stokes) of ``variable`` against ``coord``; colour per input,
-    line style per Stokes. Returns the units and the last dataset plotted."""
-    units, ds = "", None
-    for i, item in enumerate(inputs):
-        ps, label = item if isinstance(item, tuple) else (item, None)
-        ds = _open(ps)
-        label = label or Path(str(ds.attrs.get("source", f"input {i}"))).name
-        units = ds[variable].attrs.get("units", units)
-        k = ds[coord].values
-        for j, s in enumerate(stokes):
-            y = ds[variable].sel(stokes=s).values
-            ok = np.isfinite(y) & (y > 0) & ((k > 0) if positive_k else True)
-            ax.plot(k[ok], y[ok], styles[j % len(styles)], color=f"C{i}", marker="o", ms=3,
-                    label=f"{label}: {s}")
-    return units, ds
-
-
 def plot_ps1d(inputs, path, stokes: Sequence[str] = ("Q", "U"), pdf: bool = False,
               title: str | None = None) -> Path:
-    """1D PS versus k_par of several inputs on one axis.
+    """1D PS versus k_par of several inputs on one axis: each input its own line style,
+    open marker, line width and marker size, each Stokes its own colour, so curves of
+    different inputs stay apart where they overlap.
 
     ``inputs``: a sequence of ps products/paths or ``(ps, label)`` pairs.
     """
     fig, ax = new_figure(figsize=(6, 4.2), constrained_layout=True)
-    units, ds = _plot_spectra(ax, inputs, "power_1d", "k_par", stokes,
-                              ["-", "--", ":", "-."], positive_k=True)
-    kp = (ds.attrs.get("k_perp_min_1d"), ds.attrs.get("k_perp_max_1d"))
+    units, ds = "", None
+    for i, item in enumerate(inputs):
+        ps, label = item if isinstance(item, tuple) else (item, None)
+        ds = _open(ps)
+        label = label or describe_input(ds)
+        units = ds["power_1d"].attrs.get("units", units)
+        k = ds["k_par"].values
+        for j, s in enumerate(stokes):
+            y = ds["power_1d"].sel(stokes=s).values
+            ok = np.isfinite(y) & (y > 0) & (k > 0)
+            ax.plot(k[ok], y[ok], _LINESTYLES[i % len(_LINESTYLES)], color=f"C{j}",
+                    lw=max(0.8, 2.4 - 0.6 * i), marker=_MARKERS[i % len(_MARKERS)],
+                    ms=max(3.0, 8.0 - 2.0 * i), mfc="none", label=f"{label}: {s}")
+    k_units = _tex(ds["k_par"].attrs.get("units", "")) if ds is not None else ""
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel(r"$k_\parallel$ [Mpc$^{-1}$]")
-    ax.set_ylabel(f"$P(k_\\parallel)$ [{_UNIT_TEX.get(units, units)}]")
+    ax.set_xlabel(rf"$k_\parallel$ [{k_units}]")
+    ax.set_ylabel(f"$P(k_\\parallel)$ [{_tex(units)}]")
     ax.legend(fontsize=8)
-    sub = f"{kp[0]:g} < $k_\\perp$ < {kp[1]:g} Mpc$^{{-1}}$" if kp[0] is not None else ""
+    kp = (ds.attrs.get("k_perp_min_1d"), ds.attrs.get("k_perp_max_1d")) if ds is not None \
+        else (None, None)
+    sub = f"{kp[0]:g} < $k_\\perp$ < {kp[1]:g} {k_units}" if kp[0] is not None else ""
     ax.set_title(f"{title}  ({sub})" if title else sub, fontsize=10)
-    ax.grid(alpha=0.3, which="both")
-    return save_figure(fig, path, pdf=pdf)
-
-
-def plot_ps_sph(inputs, path, stokes: Sequence[str] = ("I",), pdf: bool = False,
-                title: str | None = None) -> Path:
-    """Spherically averaged PS of several inputs on one axis."""
-    fig, ax = new_figure(figsize=(6, 4.2), constrained_layout=True)
-    units, _ = _plot_spectra(ax, inputs, "power_sph", "k", stokes, ["-", "--", ":"],
-                             positive_k=False)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(r"$k$ [Mpc$^{-1}$]")
-    ax.set_ylabel(f"$P(k)$ [{_UNIT_TEX.get(units, units)}]")
-    ax.legend(fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     return save_figure(fig, path, pdf=pdf)

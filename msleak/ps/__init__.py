@@ -7,24 +7,13 @@ The flow is ``grid -> transform -> ps``:
 :mod:`msleak.ps.delay`      spectral windows and the delay transform
 :mod:`msleak.ps.binning`    cylindrical, spherical and 1D averages
 :mod:`msleak.ps.cosmology`  k_perp, k_par, wedge slopes, Jy^2 -> mK^2 Mpc^3
-:mod:`msleak.ps.uvcube`     MS -> uvcube product (chunked reads)
+:mod:`msleak.ps.grid`       MS or images -> uvcube product (``msleak.grid``)
+:mod:`msleak.ps.grid_tasks` MS checks and chunk tasks of the grid
 :mod:`msleak.ps.fitscube`   FITS image cubes -> uvcube product
-:mod:`msleak.ps.spectra`    uvcube -> delay product -> ps product
+:mod:`msleak.ps.transform`  uvcube -> delay product (``msleak.transform``)
+:mod:`msleak.ps.power`      delay product -> ps product (``msleak.power_spectrum``)
 """
 
 from __future__ import annotations
 
-__all__ = ["grid_ms", "grid_image", "transform_uvcube", "power_spectrum"]
-
-
-def __getattr__(name):  # lazy: keep `import msleak.ps` light
-    if name == "grid_ms":
-        from msleak.ps.uvcube import grid_ms
-        return grid_ms
-    if name == "grid_image":
-        from msleak.ps.fitscube import grid_image
-        return grid_image
-    if name in ("transform_uvcube", "power_spectrum"):
-        from msleak.ps import spectra
-        return getattr(spectra, name)
-    raise AttributeError(name)
+__all__: list[str] = []

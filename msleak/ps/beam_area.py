@@ -21,7 +21,7 @@ __all__ = ["beam_area_from_power", "ms_beam_area", "BEAM_AREA_MODELS"]
 log = logging.getLogger(__name__)
 
 #: ``--beam-area-model`` choices: auto (everybeam when the MS has the LOFAR tables, else
-#: dipole; chosen by msleak.ps.uvcube), a beam model of msleak.beam, or the analytic Airy
+#: dipole; chosen by msleak.ps.grid), a beam model of msleak.beam, or the analytic Airy
 #: disc of a cell-wide station (msleak.ps.gridding.beam_area_model)
 BEAM_AREA_MODELS = ("auto", "everybeam", "dipole", "airy")
 
@@ -36,7 +36,7 @@ def beam_area_from_power(power: np.ndarray, response: np.ndarray, l: np.ndarray,
     return float(np.sum((power * response) ** 2 / n) * step)
 
 
-def ms_beam_area(ms: str | Path, *, model: str, gridder: str, taper: str, cell: float,
+def ms_beam_area(ms: str | Path, *, model: str, gridder: str, cell: float,
                  freq_hz: float | None = None, field_id: int = 0, ddid: int = 0,
                  half_width_deg: float = 12.0, npix: int = 97) -> tuple[float, str]:
     """Omega (sr) from the beam model of ``ms`` and a description of how it was made.
@@ -83,7 +83,7 @@ def ms_beam_area(ms: str | Path, *, model: str, gridder: str, taper: str, cell: 
     a = (power / power0).reshape(ra.shape)
     l, m = np.sin(np.radians(l_deg)), np.sin(np.radians(m_deg))
     ll, mm = np.meshgrid(l, m)
-    omega = beam_area_from_power(a, gridder_response(gridder, taper, ll, mm, cell), l, m)
+    omega = beam_area_from_power(a, gridder_response(gridder, ll, mm, cell), l, m)
     how = (f"int A^2 R^2 dOmega: A the {model} station power beam of the MS (mean M00 over "
            f"stations at {f_mid / 1e6:.3f} MHz, mid-observation), R the gridder's response")
     log.info("beam area from the %s beam: %.3e sr", model, omega)

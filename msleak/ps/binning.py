@@ -122,7 +122,6 @@ class Cylindrical:
     counts: np.ndarray
     folded_delay: np.ndarray
     perp_centres: np.ndarray
-    edges: np.ndarray
 
 
 def _bin_of(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -162,7 +161,7 @@ def cylindrical_average(p3d: np.ndarray, delay: np.ndarray, b_cell: np.ndarray,
         sums = np.bincount(flat, p3d[s][:, ok_cell].ravel(), minlength=size)
         with np.errstate(invalid="ignore", divide="ignore"):
             power[s] = np.where(counts > 0, sums.reshape(nfold, nperp) / counts, np.nan)
-    return Cylindrical(power, counts, folded, 0.5 * (edges[1:] + edges[:-1]), edges)
+    return Cylindrical(power, counts, folded, 0.5 * (edges[1:] + edges[:-1]))
 
 
 def spherical_average(p3d: np.ndarray, k_par_signed: np.ndarray, k_perp_cell: np.ndarray,

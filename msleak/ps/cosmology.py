@@ -1,7 +1,8 @@
 """21-cm cosmology: redshift, comoving distances, k_perp / k_par and the wedge.
 
 All quantities are in Mpc (not h^-1 Mpc), s and Hz; the cosmology is an astropy
-cosmology chosen by name (default ``Planck18``).
+realisation chosen by name (default ``Planck18``) or a flat LambdaCDM from H0 and Om0
+(docs/ps.md "Cosmology").
 
 Formulas (docs/science.md section 5)::
 
@@ -15,27 +16,80 @@ Formulas (docs/science.md section 5)::
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from msleak.constants import BOLTZMANN, FREQ_21CM, SPEED_OF_LIGHT
 from msleak.errors import InputError
 
-__all__ = ["Cosmo", "get_cosmology", "cosmo_at", "wedge_slope",
+if TYPE_CHECKING:
+    from astropy.cosmology import Cosmology
+
+__all__ = ["Cosmo", "get_cosmology", "make_cosmology", "describe", "cosmo_at",
            "jy2_to_mk2_mpc3"]
 
+DEFAULT_COSMOLOGY = "Planck18"
 
 
+def get_cosmology(name: str = DEFAULT_COSMOLOGY) -> Cosmology:
+    """An astropy cosmology realisation by name (any of ``astropy.cosmology.realizations``)."""
+    from astropy.cosmology import realizations
 
-def get_cosmology(name: str = "Planck18"):
-    """An astropy cosmology by name (``Planck18``, ``Planck15``, ``WMAP9``, ...)."""
-    from astropy import cosmology as apc
-
-    available = list(apc.realizations.available)
+    available = list(realizations.available)
     if name not in available:
-        raise InputError(f"unknown cosmology {name!r}: use one of {', '.join(available)}")
-    return getattr(apc, name)
+        raise InputError(f"unknown cosmology {name!r}: use one of {', '.join(available)}, "
+                         "or --h0 and --om0 for a flat LambdaCDM")
+    return getattr(realizations, name)
+
+
+def make_cosmology(cosmology: str | Cosmology | None = None, *, h0: float | None = None,
+                   om0: float | None = None, ob0: float | None = None,
+                   tcmb0: float | None = None) -> Cosmology:
+    """The astropy cosmology of the ``msleak ps`` options.
+
+    ``cosmology`` is a realisation name or an astropy cosmology (default Planck18); or
+    ``h0`` (km/s/Mpc) and ``om0`` (with optional ``ob0`` and ``tcmb0`` in K) give a
+    ``FlatLambdaCDM``. A name and H0/Om0 exclude each other.
+    """
+    params = {"--h0": h0, "--om0": om0, "--ob0": ob0, "--tcmb0": tcmb0}
+    given = [k for k, v in params.items() if v is not None]
+    if not given:
+        if cosmology is None or isinstance(cosmology, str):
+            return get_cosmology(cosmology or DEFAULT_COSMOLOGY)
+        return cosmology
+    if cosmology is not None:
+        raise InputError(f"--cosmology and {'/'.join(given)} exclude each other: give a "
+                         "realisation name or --h0 and --om0 (flat LambdaCDM)")
+    if h0 is None or om0 is None:
+        raise InputError(f"{'/'.join(given)} without {'--h0' if h0 is None else '--om0'}: a "
+                         "flat LambdaCDM needs both --h0 and --om0 (or use --cosmology NAME)")
+    for opt, v in params.items():
+        positive = opt in ("--h0", "--om0")
+        if v is not None and not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
+            raise InputError(f"{opt} {v:g}: must be a {'positive' if positive else 'non-negative'}"
+                             " finite number")
+    from astropy.cosmology import FlatLambdaCDM
+
+    try:
+        return FlatLambdaCDM(H0=h0, Om0=om0, Tcmb0=tcmb0 or 0.0,
+                             **({} if ob0 is None else {"Ob0": ob0}))
+    except ValueError as err:
+        raise InputError(f"flat LambdaCDM (--h0 {h0:g} --om0 {om0:g}): {err}") from err
+
+
+def describe(cosmo: Cosmology) -> dict:
+    """Product attributes recording an astropy cosmology: its name or parameters, and h."""
+    import astropy.units as u
+
+    h0 = float(cosmo.H0.to_value(u.km / u.s / u.Mpc))
+    params = (f"H0={h0:.10g} km/s/Mpc, Om0={cosmo.Om0:.10g}, Ob0={cosmo.Ob0:.10g}, "
+              f"Tcmb0={cosmo.Tcmb0.to_value(u.K):.10g} K")
+    return {"cosmology": cosmo.name or type(cosmo).__name__,
+            "cosmology_parameters": f"{type(cosmo).__name__}: {params}",
+            "h": h0 / 100.0}
 
 
 @dataclass(frozen=True)
@@ -49,6 +103,11 @@ class Cosmo:
     efunc: float         #: E(z) = H(z) / H0
     h0_km_s_mpc: float   #: H0, km/s/Mpc
     dh_mpc: float        #: Hubble distance c / H0, Mpc
+
+    @property
+    def h(self) -> float:
+        """Little h = H0 / (100 km/s/Mpc)."""
+        return self.h0_km_s_mpc / 100.0
 
     @property
     def x_mpc_per_rad(self) -> float:
@@ -72,24 +131,20 @@ class Cosmo:
                 / (self.dh_mpc * (1 + self.z)))
 
 
-def cosmo_at(freq_hz: float, name: str = "Planck18") -> Cosmo:
-    """Conversion factors for the 21-cm line observed at ``freq_hz``."""
+def cosmo_at(freq_hz: float, cosmology: str | Cosmology = DEFAULT_COSMOLOGY) -> Cosmo:
+    """Conversion factors for the 21-cm line observed at ``freq_hz``; ``cosmology`` is a
+    realisation name or an astropy cosmology (:func:`make_cosmology`)."""
     if not (freq_hz > 0 and freq_hz < FREQ_21CM):
         raise InputError(f"frequency {freq_hz / 1e6:.3f} MHz is not below the 21-cm rest "
                          f"frequency {FREQ_21CM / 1e6:.3f} MHz: no 21-cm redshift")
     import astropy.units as u
 
-    c = get_cosmology(name)
+    c = get_cosmology(cosmology) if isinstance(cosmology, str) else cosmology
     z = FREQ_21CM / freq_hz - 1
     h0 = c.H0.to_value(u.km / u.s / u.Mpc)
-    return Cosmo(name=name, z=z, freq_hz=float(freq_hz),
+    return Cosmo(name=describe(c)["cosmology"], z=z, freq_hz=float(freq_hz),
                  dc_mpc=float(c.comoving_distance(z).to_value("Mpc")),
                  efunc=float(c.efunc(z)), h0_km_s_mpc=float(h0), dh_mpc=SPEED_OF_LIGHT / 1e3 / h0)
-
-
-def wedge_slope(cosmo: Cosmo, theta_deg: float) -> float:
-    """Shortcut for :meth:`Cosmo.wedge_slope`."""
-    return cosmo.wedge_slope(theta_deg)
 
 
 def jy2_to_mk2_mpc3(cosmo: Cosmo, beam_area_sr: float, bandwidth_hz: float) -> float:

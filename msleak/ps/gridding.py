@@ -1,56 +1,9 @@
 """Gridding of Stokes visibilities onto square uv cells, one channel at a time.
 
-Two gridders share one geometry (:class:`UVGrid`): cells of ``cell`` wavelengths centred
-on integer multiples of ``cell``, ``u`` and ``v`` from ``-M cell`` to ``+M cell``.
-What a cell's power measures: the cell value is (for a well-sampled uv plane) the
-visibility at the cell centre of the sky times the station beam times the gridder's
-image-domain response ``R(l, m)``, so the power spectrum weights the sky by
-``A^2 R^2`` (A the station power beam) and its normalisation is
-``Omega = int A^2 R^2 dOmega``. ``R`` must therefore be wider than the station beam,
-or the gridder, not the beam, sets the field of view.
-
-``wgrid`` (w-corrected, the default)
-    Per channel, ducc0's wgridder makes the w-corrected dirty image
-    ``D(l, m) = sum_k w_k Re[V_k exp(+2 pi i (u_k l + v_k m + w_k (n - 1)))]`` of a box
-    :func:`box_factor` / ``cell`` rad wide, and the same for unit visibilities (the
-    w-corrected PSF). Both are multiplied by the response ``R`` (:func:`image_taper`),
-    Fourier transformed and read at the cell centres, giving
-    ``N(u_c) = sum_k w_k V_k K_k(u_k - u_c)`` and ``Ntilde(u_c) = sum_k w_k K_k(u_k - u_c)``
-    with the w-projection kernel ``K_k(du) = sum_pix R exp(2 pi i (du l + w_k (n - 1)))``.
-    The cell value is the kernel-weighted mean ``N / Ntilde``: a point source at the
-    phase centre gives exactly its flux in every cell whatever the w's, and for a dense
-    sampling a source at (l, m) gives ``R(l, m)`` times its w = 0 visibility.
-
-    Kernels (``taper``):
-
-    ``cos2`` (default): the uv kernel (w = 0) is ``cos^2(pi du / cell) cos^2(pi dv / cell)``
-        within one cell of the sample, zero beyond: positive, one cell (a station
-        diameter for 16 wavelengths) wide, each sample feeds essentially only its own
-        cell. ``R = T(l cell) T(m cell)`` with ``T(x) = sinc(x) / (1 - x^2)`` (its
-        Fourier transform; 0.96, 0.85, 0.65, 0.50 at x = 0.25, 0.5, 0.8, 1, zero at
-        |x| >= 2), evaluated on a 4 / cell box (14.3 deg for 16 wavelengths). For
-        16-wavelength cells R^2 = 0.98, 0.90, 0.66, 0.39, 0.05 at 0.5, 1, 2, 3, 5 deg
-        on an axis (half power at 2.6 deg): wider than the station beam it multiplies
-        (LOFAR HBA core station: power FWHM ~4 deg at 150 MHz).
-    ``hann`` (legacy): ``cos^2(pi l cell) cos^2(pi m cell)`` on a 1 / cell box (3.58 deg):
-        a kernel ~4 cells wide, R^2 half power at 0.65 deg, i.e. the gridder, not the
-        beam, sets a ~1.3 deg field. Kept to reproduce earlier products.
-
-    Cells with no sample (natural weight 0) stay empty, and so do cells whose samples
-    all sit on the cell's rim (kernel-weighted weight below :data:`MASK_FRACTION` of
-    the natural weight), where the ratio would amplify noise. Samples are buffered and
-    gridded in large batches (:attr:`WGridAccumulator.buffer_samples`) because each
-    ducc0 call has a fixed cost.
-
-``cell``  (nearest cell, no w-correction)
-    Every sample adds ``w V`` and ``w`` to the cell nearest to its ``(u, v)`` and
-    ``w conj(V)`` and ``w`` to the mirrored cell (both Hermitian halves); the value is
-    ``sum w V / sum w``. Response ``R = sinc(l cell) sinc(m cell)`` for dense sampling.
-
-Sign convention of the visibilities: ``V = sum B exp(-2 pi i (u l + v m + w (n - 1)))``
-(docs/conventions.md) with (u, v, w) = uvw_p - uvw_q, i.e. minus the MS's UVW column (which holds
-uvw_q - uvw_p); :func:`msleak.ps.uvcube.grid_ms` negates UVW accordingly
-(docs/conventions.md).
+Two gridders share one geometry (:class:`UVGrid`): ``wgrid`` (w-corrected through ducc0's
+wgridder, a one-cell ``cos^2`` kernel, :class:`WGridAccumulator`) and ``cell`` (nearest
+cell, :class:`CellAccumulator`). What a cell measures, the responses R and Omega: docs/grid.md.
+The kernels take u = -UVW of the MS (docs/conventions.md).
 """
 
 from __future__ import annotations
@@ -67,51 +20,36 @@ from msleak.errors import InputError
 
 __all__ = [
     "Gridder", "UVGrid", "make_grid", "stokes_weights",
-    "CellAccumulator", "WGridAccumulator", "make_accumulator",
-    "wgrid_kernel_bruteforce", "GRIDDER_DESCRIPTIONS", "Taper", "TAPERS", "DEFAULT_TAPER",
-    "MASK_FRACTION", "box_factor", "response_profile", "gridder_response", "image_taper",
-    "taper_area_sr", "airy_power", "primary_fwhm_deg", "beam_area_model", "response_attrs",
+    "CellAccumulator", "WGridAccumulator", "make_accumulator", "GRIDDER_DESCRIPTIONS",
+    "MASK_FRACTION", "BOX_FACTOR", "response_profile", "gridder_response", "image_taper",
+    "airy_power", "primary_fwhm_deg", "beam_area_model", "response_attrs",
 ]
 
 log = logging.getLogger(__name__)
 
 Gridder = Literal["wgrid", "cell"]
-Taper = Literal["cos2", "hann"]
-TAPERS = ("cos2", "hann")
-DEFAULT_TAPER = "cos2"
 #: a ``wgrid`` cell is used only if its kernel-weighted weight is at least this
 #: fraction of its natural weight (its samples are not all on the cell's rim)
 MASK_FRACTION = 0.05
-_BOX = {"cos2": 4, "hann": 1}
+#: width of the ``wgrid`` image box in units of ``1 / cell`` rad (where its response ends)
+BOX_FACTOR = 4
 
 
-def _check_taper(name: str) -> None:
-    if name == "none":
-        raise InputError("taper 'none' was removed: its sinc kernel amplified noise 1.6-4.5x "
-                         "in sparsely sampled cells; use 'cos2' (default) or 'hann'")
-    if name not in _BOX:
-        raise InputError(f"unknown taper {name!r}: use 'cos2' or 'hann'")
+def _check_gridder(gridder: str) -> None:
+    if gridder not in ("wgrid", "cell"):
+        raise InputError(f"unknown gridder {gridder!r}: use 'wgrid' or 'cell'")
 
 
-def box_factor(name: Taper) -> int:
-    """Width of the ``wgrid`` image box in units of ``1 / cell`` rad."""
-    _check_taper(name)
-    return _BOX[name]
-
-
-def response_profile(name: str, x: np.ndarray) -> np.ndarray:
+def response_profile(gridder: Gridder, x: np.ndarray) -> np.ndarray:
     """One-axis image-domain amplitude response at ``x = l * cell`` (dense sampling).
 
-    ``cos2``: ``sinc(x) / (1 - x^2)`` for |x| < 2 (0.5 at |x| = 1), else 0 (the Fourier
-    transform of the one-cell ``cos^2`` uv kernel); ``hann``: ``cos^2(pi x)`` for
-    |x| < 1/2, else 0; ``cell`` (nearest-cell gridder): ``sinc(x)``.
+    ``wgrid``: ``sinc(x) / (1 - x^2)`` for |x| < 2 (0.5 at |x| = 1), else 0 (the Fourier
+    transform of the one-cell ``cos^2`` uv kernel); ``cell`` (nearest cell): ``sinc(x)``.
     """
+    _check_gridder(gridder)
     x = np.asarray(x, dtype=float)
-    if name == "cell":
+    if gridder == "cell":
         return np.sinc(x)
-    _check_taper(name)
-    if name == "hann":
-        return np.where(np.abs(x) < 0.5, np.cos(np.pi * x) ** 2, 0.0)
     ax = np.abs(x)
     near = np.abs(ax - 1.0) < 1e-6
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -119,26 +57,19 @@ def response_profile(name: str, x: np.ndarray) -> np.ndarray:
     return np.where(ax >= 2.0, 0.0, np.where(near, 0.5, t))
 
 
-def gridder_response(gridder: str, taper: str, l: np.ndarray, m: np.ndarray,
+def gridder_response(gridder: Gridder, l: np.ndarray, m: np.ndarray,
                      cell: float) -> np.ndarray:
-    """Documented amplitude response ``R(l, m)`` (direction cosines) of a gridder."""
-    name = "cell" if gridder == "cell" else taper
-    return (response_profile(name, np.asarray(l) * cell)
-            * response_profile(name, np.asarray(m) * cell))
+    """Amplitude response ``R(l, m)`` (direction cosines) of a gridder (docs/grid.md)."""
+    return (response_profile(gridder, np.asarray(l) * cell)
+            * response_profile(gridder, np.asarray(m) * cell))
 
 
-def image_taper(name: Taper, n: int) -> np.ndarray:
-    """``R`` (n, n) on the ``wgrid`` box of ``n`` pixels (``box_factor / cell`` rad), 1 at
-    pixel ``n // 2`` (the phase centre); zero at the box edge."""
-    x = (np.arange(n) - n // 2) / n * box_factor(name)
-    a = response_profile(name, x)
+def image_taper(n: int) -> np.ndarray:
+    """``R`` (n, n) of ``wgrid`` on its box of ``n`` pixels (``BOX_FACTOR / cell`` rad), 1
+    at pixel ``n // 2`` (the phase centre); zero at the box edge."""
+    x = (np.arange(n) - n // 2) / n * BOX_FACTOR
+    a = response_profile("wgrid", x)
     return np.outer(a, a)
-
-
-def taper_area_sr(name: Taper, grid: "UVGrid") -> float:
-    """``int R^2 dOmega`` (sr) of the ``wgrid`` response over its box."""
-    n = box_factor(name) * grid.npix_image
-    return float(np.sum(image_taper(name, n) ** 2) * grid.pixel_rad ** 2)
 
 
 def airy_power(theta: np.ndarray, diameter: float) -> np.ndarray:
@@ -157,8 +88,7 @@ def primary_fwhm_deg(diameter: float) -> float:
     return math.degrees(1.02899 / diameter)
 
 
-def beam_area_model(gridder: str, taper: str, cell: float,
-                    diameter: float | None = None) -> float:
+def beam_area_model(gridder: Gridder, cell: float, diameter: float | None = None) -> float:
     """``Omega = int A^2 R^2 dOmega`` (sr): A = :func:`airy_power` of an aperture of
     ``diameter`` wavelengths (default ``cell``: the cell is the station diameter), R the
     gridder's response (:func:`gridder_response`), small-angle (flat-sky) integral."""
@@ -166,22 +96,21 @@ def beam_area_model(gridder: str, taper: str, cell: float,
     half = 8.0 / min(cell, d)
     x = np.linspace(-half, half, 1201)
     l, m = np.meshgrid(x, x)
-    f = (airy_power(np.hypot(l, m), d) * gridder_response(gridder, taper, l, m, cell)) ** 2
+    f = (airy_power(np.hypot(l, m), d) * gridder_response(gridder, l, m, cell)) ** 2
     return float(f.sum() * (x[1] - x[0]) ** 2)
 
 
-def response_attrs(gridder: str, taper: str, cell: float) -> dict:
+def response_attrs(gridder: Gridder, cell: float) -> dict:
     """uvcube attributes describing what the gridded cells see (docs/grid.md)."""
-    name = "cell" if gridder == "cell" else taper
     x = np.linspace(0, 2, 20001)
-    half_power = float(x[np.argmax(response_profile(name, x) ** 2 < 0.5)])
+    half_power = float(x[np.argmax(response_profile(gridder, x) ** 2 < 0.5)])
     return {
-        "taper": taper if gridder == "wgrid" else "none (nearest cell: sinc x sinc response)",
+        "taper": "cos2" if gridder == "wgrid" else "none (nearest cell: sinc x sinc response)",
         "fov_deg": math.degrees(2 * half_power / cell),
         "fov_definition": "full width at half power of the gridder's response R^2 on an axis",
         "primary_fwhm_deg": primary_fwhm_deg(cell),
         "primary_beam_model": "Airy disc of diameter cell wavelengths (the station diameter)",
-        "beam_area_sr": beam_area_model(gridder, taper, cell),
+        "beam_area_sr": beam_area_model(gridder, cell),
         "beam_area_source": "int A^2 R^2 dOmega: A Airy power beam of a cell-wide aperture, "
                             "R the gridder's response",
     }
@@ -215,7 +144,7 @@ class UVGrid:
     @property
     def npix_image(self) -> int:
         """Pixels (even, >= 32) across ``1 / cell`` rad; the ``wgrid`` box has
-        :func:`box_factor` times as many pixels of the same size."""
+        :data:`BOX_FACTOR` times as many pixels of the same size."""
         n = max(32, 2 * (self.M + 2))
         return n + (n % 2)
 
@@ -358,8 +287,8 @@ class WGridAccumulator:
     Buffers samples and grids them (per channel, into dirty images of the Stokes
     visibilities and of unit visibilities) when ``buffer_samples`` (row x channel)
     samples are waiting, when merged or when the result is asked for; also keeps
-    nearest-cell natural weights (the ``weight`` output and the empty-cell mask). See
-    the module docstring for the estimator. Several visibility sets (e.g. MS columns) on
+    nearest-cell natural weights (the ``weight`` output and the empty-cell mask). The
+    estimator: docs/grid.md. Several visibility sets (e.g. MS columns) on
     the same samples share the buffering, the per-channel sample selection and, where
     their weights agree, the dirty image of unit visibilities; each set's images are
     exactly those of the set gridded alone.
@@ -374,7 +303,6 @@ class WGridAccumulator:
     epsilon : float
         ducc0 accuracy (relative, on the dirty image).
     nthreads : int
-    taper : {'cos2', 'hann'}
     buffer_samples : int
         Samples (rows x channels) buffered before gridding (~100 bytes each per set).
     nsets : int
@@ -382,12 +310,11 @@ class WGridAccumulator:
     """
 
     def __init__(self, grid: UVGrid, freq: np.ndarray, nstokes: int = 4,
-                 epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER,
-                 buffer_samples: int = 2_000_000, nsets: int = 1):
-        self.factor = box_factor(taper)
+                 epsilon: float = 1e-6, nthreads: int = 1, buffer_samples: int = 2_000_000,
+                 nsets: int = 1):
+        self.factor = BOX_FACTOR
         n = self.factor * grid.npix_image
-        self.taper = taper
-        self.taper_image = image_taper(taper, n)
+        self.taper_image = image_taper(n)
         self.grid = grid
         self.freq = np.asarray(freq, dtype=np.float64)
         self.nchan = self.freq.size
@@ -447,11 +374,9 @@ class WGridAccumulator:
             self.grid_buffer()
 
     def flush(self) -> None:
-        """End-of-task hook: grid the buffer if it is worth ducc0 calls of its own (at
-        least a quarter of ``buffer_samples``); smaller buffers travel with the
-        accumulator and are gridded together with others (merge, result): each ducc0
-        call costs the FFTs of its w-planes (~10 ms for the 4/cell box) whatever its size,
-        so gridding every small chunk on its own made the paper-size run 3x slower."""
+        """End-of-task hook: grid the buffer if it holds at least a quarter of
+        ``buffer_samples``; smaller buffers travel with the accumulator and are gridded
+        with others (merge, result), since each ducc0 call has a fixed cost (docs/grid.md)."""
         if self._nbuffer >= self.buffer_samples // 4:
             self.grid_buffer()
 
@@ -526,7 +451,7 @@ class WGridAccumulator:
 
     def merge(self, other: "WGridAccumulator") -> "WGridAccumulator":
         out = WGridAccumulator(self.grid, self.freq, self.nstokes, self.epsilon,
-                               self.nthreads, self.taper, self.buffer_samples, self.nsets)
+                               self.nthreads, self.buffer_samples, self.nsets)
         if self._dirty is not None or other._dirty is not None:
             out.dirty = (self._dirty if self._dirty is not None else 0.0) + (
                 other._dirty if other._dirty is not None else 0.0)
@@ -539,30 +464,11 @@ class WGridAccumulator:
 
 
 def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
-                     epsilon: float = 1e-6, nthreads: int = 1, taper: Taper = DEFAULT_TAPER,
-                     nsets: int = 1):
+                     epsilon: float = 1e-6, nthreads: int = 1, nsets: int = 1):
     """A fresh accumulator of the named gridder for ``nsets`` visibility sets."""
     if gridder == "cell":
         return CellAccumulator(grid, len(freq), nsets=nsets)
     if gridder == "wgrid":
-        return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, taper=taper,
-                                nsets=nsets)
+        return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, nsets=nsets)
     raise InputError(f"unknown gridder {gridder!r}: use 'wgrid' or 'cell'")
 
-
-def wgrid_kernel_bruteforce(grid: UVGrid, u: float, v: float, w: float,
-                            taper: Taper = DEFAULT_TAPER) -> np.ndarray:
-    """Direct evaluation of the ``wgrid`` kernel of one sample on the output grid.
-
-    Returns ``K(v_c, u_c) = sum_pix R exp(2 pi i ((u - u_c) l + (v - v_c) m + w (n - 1)))``,
-    shape (size, size), over the taper's box, for tests (slow: O(npix^2 size^2)).
-    """
-    n, dl = box_factor(taper) * grid.npix_image, grid.pixel_rad
-    x = (np.arange(n) - n // 2) * dl
-    l, m = np.meshgrid(x, x, indexing="ij")
-    nn = np.sqrt(1.0 - l * l - m * m) - 1.0
-    c = grid.centres
-    ex_u = np.exp(2j * np.pi * np.outer(u - c, x))  # (u_c, l)
-    ex_v = np.exp(2j * np.pi * np.outer(v - c, x))  # (v_c, m)
-    ph = np.exp(2j * np.pi * w * nn) * image_taper(taper, n)  # (l, m)
-    return np.einsum("al,lm,bm->ba", ex_u, ph, ex_v)

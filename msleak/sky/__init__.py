@@ -5,7 +5,7 @@ Public API::
 
     SkyCube, generate_foreground_cube, ForegroundParams          cubes and the generator
     crop, recentre, convert_units, crop_npix_for_fov              cube operations
-    PointSources, sources_from_cube, read_sky, lmn                point sources
+    PointSources, sources_from_cube, lmn                          point sources
     burn_slab, polarized_brightness                               Faraday physics
 """
 
@@ -14,12 +14,12 @@ from msleak.sky.cube import (SkyCube, convert_units, crop, crop_npix_for_fov,
                              pixel_directions, pixel_solid_angle, recentre)
 from msleak.sky.faraday import burn_slab, polarized_brightness
 from msleak.sky.foreground import ForegroundParams, generate_foreground_cube
-from msleak.sky.sources import DEFAULT_RTOL, PointSources, lmn, read_sky, sources_from_cube
+from msleak.sky.sources import DEFAULT_RTOL, PointSources, lmn, sources_from_cube
 
 __all__ = [
     "SkyCube", "ForegroundParams", "generate_foreground_cube", "crop", "recentre",
     "convert_units", "crop_npix_for_fov", "kelvin_to_jansky", "jansky_to_kelvin",
     "make_celestial_wcs", "pixel_directions", "pixel_solid_angle", "PointSources",
-    "sources_from_cube", "read_sky", "lmn", "DEFAULT_RTOL", "burn_slab",
+    "sources_from_cube", "lmn", "DEFAULT_RTOL", "burn_slab",
     "polarized_brightness",
 ]

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
+from astropy.wcs import WCS
 
 from msleak.constants import jy_per_kelvin
 from msleak.errors import InputError
@@ -103,10 +104,6 @@ class SkyCube:
             raise InputError(f"unknown brightness unit {self.units!r}; use K or Jy/pixel")
 
     @property
-    def shape(self) -> tuple[int, int, int, int]:
-        return tuple(self.data.shape)
-
-    @property
     def npix(self) -> tuple[int, int]:
         """(ny, nx)."""
         return self.data.shape[2], self.data.shape[3]
@@ -119,11 +116,6 @@ class SkyCube:
             raise InputError(f"unknown Stokes parameter {stokes!r}")
         return np.zeros(self.data.shape[1:], dtype=self.data.dtype)
 
-    def reference(self) -> tuple[float, float]:
-        """(RA, Dec) of the WCS reference point, rad."""
-        ra, dec = self.wcs.wcs.crval[:2]
-        return math.radians(ra), math.radians(dec)
-
 
 def make_celestial_wcs(nx: int, ny: int, pixel_deg: float, ra_deg: float, dec_deg: float):
     """SIN-projected celestial WCS centred on (ra, dec), the grid centre as reference.
@@ -132,8 +124,6 @@ def make_celestial_wcs(nx: int, ny: int, pixel_deg: float, ra_deg: float, dec_de
     even n). RA increases to the left. LONPOLE = 180 deg keeps the orientation of the
     limit Dec -> 90 deg at the pole itself.
     """
-    from astropy.wcs import WCS
-
     if not (-90.0 <= dec_deg <= 90.0):
         raise InputError(f"declination {dec_deg} deg is outside -90..90")
     if pixel_deg <= 0 or nx < 1 or ny < 1:

@@ -25,7 +25,6 @@ __all__ = [
     "gaussian_random_field",
     "solenoidal_vector_field",
     "lognormal_field",
-    "isotropic_power_spectrum",
 ]
 
 
@@ -163,31 +162,3 @@ def lognormal_field(gauss: np.ndarray, mean: float, sigma_ln: float) -> np.ndarr
         raise InputError(f"log-normal width must be >= 0, got {sigma_ln}")
     return mean * np.exp(sigma_ln * gauss - 0.5 * sigma_ln**2)
 
-
-def isotropic_power_spectrum(field: np.ndarray, cell: tuple[float, float, float],
-                             nbins: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Spherically averaged power spectrum of a 3-D box (for checks and figures).
-
-    Returns
-    -------
-    k : (nbins,) mean wavenumber of the modes in each bin (rad / L)
-    power : (nbins,) mean |f_k|^2 in each bin (arbitrary normalisation)
-    counts : (nbins,) number of Fourier modes in each bin
-    """
-    fk = np.fft.rfftn(field)
-    kz, ky, kx = wavenumbers(field.shape, cell)
-    kmag = np.sqrt(kz**2 + ky**2 + kx**2).ravel()
-    p = (np.abs(fk) ** 2).ravel()
-    good = kmag > 0
-    kmin = kmag[good].min()
-    kmax = min(np.pi / c for c in cell)  # Nyquist of the coarsest axis
-    edges = np.geomspace(kmin, kmax, nbins + 1)
-    idx = np.digitize(kmag, edges) - 1
-    use = good & (idx >= 0) & (idx < nbins)
-    counts = np.bincount(idx[use], minlength=nbins)
-    sums = np.bincount(idx[use], weights=p[use], minlength=nbins)
-    ksum = np.bincount(idx[use], weights=kmag[use], minlength=nbins)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        power = sums / counts
-        kmean = ksum / counts
-    return kmean, power, counts

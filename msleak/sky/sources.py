@@ -19,18 +19,15 @@ Directions are J2000 (RA, Dec) in radians.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from msleak.errors import InputError
-from msleak.sky.cube import SkyCube, convert_units, crop, pixel_directions, recentre
-
-__all__ = ["PointSources", "lmn", "sources_from_cube", "read_sky", "DEFAULT_RTOL"]
-
 from msleak.constants import SPEED_OF_LIGHT
+from msleak.errors import InputError
+from msleak.sky.cube import SkyCube, convert_units, pixel_directions
+
+__all__ = ["PointSources", "lmn", "sources_from_cube", "DEFAULT_RTOL"]
 
 #: Default relative tolerance for matching an MS channel to a sky-cube channel.
 DEFAULT_RTOL = 1e-6
@@ -255,17 +252,8 @@ class PointSources:
         return out
 
 
-def sources_from_cube(path_or_cube: str | os.PathLike | SkyCube, *,
-                      fov_deg: float | None = None,
-                      phase_centre: tuple[float, float] | None = None) -> PointSources:
+def sources_from_cube(cube: SkyCube) -> PointSources:
     """Every voxel of a cube as a point source, in Jy (docs/science.md section 3).
-
-    Parameters
-    ----------
-    path_or_cube : a FITS cube path or a :class:`SkyCube`
-    fov_deg : optional centred crop (see :func:`msleak.sky.cube.crop`)
-    phase_centre : optional (RA, Dec) rad; the cube is first re-centred there
-        (:func:`msleak.sky.cube.recentre`: the grid keeps its (l, m) geometry)
 
     Returns
     -------
@@ -273,19 +261,8 @@ def sources_from_cube(path_or_cube: str | os.PathLike | SkyCube, *,
     cube's channels; K cubes are converted with S = 2 k_B T Omega_pix / lambda^2.
     Q and U are passed unchanged: the cube's are referred to the local North of each
     pixel (FITS convention, :mod:`msleak.sky.cube`), which is the frame predict and the
-    beam use at each source's direction. Re-centring turns them with the grid
-    (:func:`msleak.sky.cube.recentre`).
+    beam use at each source's direction.
     """
-    if isinstance(path_or_cube, SkyCube):
-        cube = path_or_cube
-    else:
-        from msleak.io.fits import read_cube
-
-        cube = read_cube(path_or_cube)
-    if phase_centre is not None:
-        cube = recentre(cube, *phase_centre)
-    if fov_deg is not None:
-        cube = crop(cube, fov_deg=fov_deg)
     cube = convert_units(cube, "Jy/pixel")
     ny, nx = cube.npix
     ra, dec = pixel_directions(cube.wcs, (ny, nx))
@@ -297,37 +274,3 @@ def sources_from_cube(path_or_cube: str | os.PathLike | SkyCube, *,
             stokes[:, :, k] = plane.reshape(nchan, ny * nx).T
     return PointSources(ra=ra.ravel(), dec=dec.ravel(), freq=np.asarray(cube.freq, float),
                         stokes=stokes)
-
-
-def _is_fits(path: Path) -> bool:
-    with open(path, "rb") as fh:
-        return fh.read(9) == b"SIMPLE  ="
-
-
-def read_sky(path: str | os.PathLike, *, fov_deg: float | None = None,
-             phase_centre: tuple[float, float] | None = None) -> PointSources:
-    """Read a sky: a FITS cube (voxel sources) or a makesourcedb text file.
-
-    For a cube, ``fov_deg`` and ``phase_centre`` are as in :func:`sources_from_cube`.
-    For a makesourcedb file the sources keep their positions; ``fov_deg`` keeps those
-    with |l| and |m| <= fov / 2 (rad, the half width of a SIN cube of that FoV) about
-    ``phase_centre`` (which is then required).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"sky file {path} does not exist")
-    if path.is_dir():
-        raise InputError(f"sky {path} is a directory, not a FITS cube or makesourcedb file")
-    if _is_fits(path):
-        return sources_from_cube(path, fov_deg=fov_deg, phase_centre=phase_centre)
-    from msleak.io.skymodel import read_skymodel
-
-    sources = read_skymodel(path)
-    if fov_deg is not None:
-        if phase_centre is None:
-            raise InputError("selecting a field of view from a makesourcedb sky needs the "
-                             "phase centre")
-        half = math.radians(fov_deg) / 2
-        l_, m_, n_ = sources.lmn(*phase_centre)
-        sources = sources.select((np.abs(l_) <= half) & (np.abs(m_) <= half) & (n_ > 0))
-    return sources

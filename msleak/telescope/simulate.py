@@ -3,12 +3,14 @@
 Rows are ordered by time, then baseline (ANTENNA1 < ANTENNA2, autocorrelations only with
 ``autocorrelations=True``). TIME is the centre of each integration. DATA is zero, FLAG
 false, WEIGHT_SPECTRUM one. Rows are written in time chunks so memory stays bounded
-(about ``chunk_rows`` x nchan x 4 x 13 bytes) whatever the length of the observation.
+whatever the length of the observation (docs/simulate.md).
 """
 
 from __future__ import annotations
 
+import fnmatch
 import logging
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,11 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from msleak.errors import InputError
+from msleak.io.phased_array import write_phased_array
+from msleak.io.products import call_record
 from msleak.telescope.layouts import Layout, lofar_hba_core, read_layout_file
+from msleak.telescope.ska_low import (ska_low_from_layout_file, ska_low_layout,
+                                      station_element_offsets)
 from msleak.telescope.ms_create import create_ms_tables
 from msleak.telescope.uvw import antenna_uvw
 
-__all__ = ["FIELD_PRESETS", "FieldPreset", "simulate_ms", "transit_start"]
+__all__ = ["FIELD_PRESETS", "FieldPreset", "TELESCOPES", "simulate", "transit_start"]
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +46,15 @@ class FieldPreset:
 FIELD_PRESETS = {
     "ncp": FieldPreset("NCP", 0.0, 90.0, 13.0, "2013-02-06", False),
     "3c196": FieldPreset("3C196", 123.4, 48.2, 8.0, "2012-12-16", True),
+    # the southern EoR0 field (RA 0 h, Dec -27 deg), 8 h centred on transit
+    "eor0": FieldPreset("EoR0", 0.0, -27.0, 8.0, "2020-10-01", True),
 }
+
+#: telescopes msleak simulates, and the field each observes by default
+TELESCOPES = {"lofar": "3c196", "ska-low": "eor0"}
+
+#: Rows written per chunk (memory: about this x nchan x 4 x 13 bytes)
+_CHUNK_ROWS = 200_000
 
 #: Most time slots one simulated MS may have (guards against typos such as 1e6 hours)
 _MAX_TIME_SLOTS = 1e7
@@ -73,56 +87,172 @@ def _parse_start(start: str) -> float:
                          "2012-12-16T20:00:00") from None
 
 
-def simulate_ms(path: str | Path, *, field: str | None = "3c196",
-                phase_centre: tuple[float, float] | None = None, start: str | None = None,
-                duration_h: float | None = None, interval_s: float = 120.0,
-                freq_min_hz: float = 150e6, nchan: int = 50, chan_width_hz: float = 195312.5,
-                stations: str | None = None, layout: str | Path | None = None,
-                autocorrelations: bool = False, overwrite: bool = False,
-                chunk_rows: int = 200_000, progress: bool = False) -> Path:
-    """Create a Measurement Set at ``path`` (see ``msleak simulate --help``).
+def simulate(output: str | os.PathLike, *, field: str | None = None,
+             phase_centre: tuple[float, float] | None = None, start: str | None = None,
+             duration: float | None = None, interval: float = 120.0,
+             freq_min: float = 150e6, nchan: int = 50, chan_width: float = 195312.5,
+             stations: str | None = None, layout: str | os.PathLike | None = None,
+             autocorrelations: bool = False, telescope: str = "lofar",
+             overwrite: bool = False, progress: bool = False) -> Path:
+    """Create the Measurement Set ``output`` (``msleak simulate``, docs/simulate.md).
 
     Parameters
     ----------
-    field : 'ncp' or '3c196' preset (phase centre, duration, date), or None with
-        ``phase_centre``
-    phase_centre : (RA, Dec) in degrees, overrides the preset's
-    start : ISO UTC start time; default: the preset's (centred on transit for 3C196 and
-        any custom phase centre)
-    duration_h, interval_s : synthesis time (h) and integration (s)
-    freq_min_hz, nchan, chan_width_hz : channel i is centred at freq_min + i * width
-    stations : station/field name pattern(s), e.g. ``"CS00[1-3]HBA*"``
-    layout : layout text file for a non-LOFAR array (see msleak.telescope.layouts)
+    output : path
+        The new MS; an existing one is refused unless ``overwrite``.
+    field : {'ncp', '3c196', 'eor0'}, optional
+        Observing preset (phase centre, duration, date); default the telescope's
+        (``'3c196'`` for LOFAR, ``'eor0'`` for SKA-Low) unless ``phase_centre`` is given.
+    phase_centre : (ra_deg, dec_deg), optional
+        J2000 phase centre in degrees; overrides the preset's.
+    start : str, optional
+        ISO UTC start; default the preset's (centred on transit for 3C196 and any
+        custom phase centre).
+    duration, interval : float
+        Synthesis time (hours) and integration time (seconds).
+    freq_min, nchan, chan_width : float, int, float
+        Channel i is centred at ``freq_min + i * chan_width`` (Hz).
+    stations : str, optional
+        Station name patterns, comma-separated, e.g. ``"CS00[1-3]HBA*"``.
+    layout : path, optional
+        Layout text file of another array (no LOFAR beam tables then; with
+        ``telescope='ska-low'``, real SKA-Low station positions).
+    autocorrelations : bool
+        Include autocorrelation rows.
+    telescope : {'lofar', 'ska-low'}
+        LOFAR HBA core (default), or an approximate SKA-Low core of 224 stations of 256
+        elements with the PHASED_ARRAY table EveryBeam reads (docs/ska_low.md).
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    pathlib.Path
+        The MS, with a HISTORY row saying what was simulated.
     """
-    path = Path(path)
+    call = dict(locals())
+    path = Path(output)
+    if telescope not in TELESCOPES:
+        raise InputError(f"unknown telescope {telescope!r}: use one of {', '.join(TELESCOPES)}")
+    if field is None and phase_centre is None:
+        field = TELESCOPES[telescope]
+    preset, ra_deg, dec_deg, name = _pointing(field, phase_centre)
+    if duration is None:
+        duration = preset.duration_h if preset is not None else 8.0
+    ntime = _time_slots(duration, interval, freq_min, chan_width, nchan)
+    lay = _layout(telescope, layout, stations)
+    if len(lay) < 2:
+        raise InputError("an interferometer needs at least two stations")
+    _check_rises(lay, dec_deg, name)
+    _prepare_output(path, overwrite)
+    t_start = _start_time(start, preset, phase_centre, lay, ra_deg, duration)
+    times = t_start + (np.arange(ntime) + 0.5) * interval
+    freq = freq_min + np.arange(int(nchan)) * chan_width
+    a1, a2 = np.triu_indices(len(lay), k=0 if autocorrelations else 1)
+    nrows = ntime * len(a1)
+    log.info("creating %s: %d antennas, %d baselines, %d times x %.0f s, %d channels (%d rows)",
+             path, len(lay), len(a1), ntime, interval, nchan, nrows)
+    from msleak.io.columns import check_free_space
+    from msleak.io.ms import append_history
+
+    # DATA (complex64), WEIGHT_SPECTRUM (float32), FLAG (bits), ~200 B of other columns a
+    # row, plus tiles and subtables: casacore aborts the process on a full disk.
+    check_free_space(path.parent, nrows * (int(nchan) * 4 * 12.2 + 200) + 1.5 * 2**20,
+                     f"the Measurement Set {path}")
+    ra, dec = np.radians(ra_deg), np.radians(dec_deg)
+    try:
+        create_ms_tables(path, layout=lay, freq=freq, chan_width=chan_width, ra=ra,
+                         dec=dec, field_name=name,
+                         time_range=(t_start, t_start + ntime * interval), nrows=nrows)
+        _fill_main(path, times, interval, a1, a2, lay.positions, ra, dec, int(nchan),
+                   _CHUNK_ROWS, progress)
+        if telescope == "ska-low":
+            axes, offsets = station_element_offsets(lay.positions)
+            write_phased_array(path, lay.positions, axes, offsets)
+        what = {"lofar": "LOFAR", "ska-low": "SKA-Low"}[telescope] + \
+            (" (approximate core)" if telescope == "ska-low" and layout is None else "")
+        append_history(path, f"simulated {len(lay)} {what} stations, field {name}, {ntime} x "
+                             f"{interval:g} s, {int(nchan)} channels of {chan_width:.10g} Hz "
+                             f"from {freq_min:.10g} Hz",
+                       command=call_record(simulate, call, skip=("progress",)))
+    except BaseException:
+        log.error("simulate interrupted; %s is incomplete: rerun with --overwrite", path)
+        raise
+    return path
+
+
+def _layout(telescope: str, layout, stations) -> Layout:
+    """The stations of ``telescope``, from ``layout`` if given, selected by ``stations``."""
+    if telescope == "lofar":
+        return (read_layout_file(layout, stations) if layout is not None
+                else lofar_hba_core(stations or "CS*HBA*"))
+    if layout is not None:
+        return ska_low_from_layout_file(layout, stations)
+    lay = ska_low_layout().to_layout()
+    if stations is None:
+        return lay
+    keep = [i for i, n in enumerate(lay.names)
+            if any(fnmatch.fnmatchcase(n, p.strip()) for p in stations.split(","))]
+    if not keep:
+        raise InputError(f"--stations {stations!r} matches no SKA-Low station "
+                         f"(names S000..S{len(lay) - 1:03d})")
+    return Layout(names=[lay.names[i] for i in keep], positions=lay.positions[keep],
+                  diameters=lay.diameters[keep], telescope=lay.telescope)
+
+
+def _check_rises(lay: Layout, dec_deg: float, name: str) -> None:
+    """Refuse a field that never rises above the array's horizon."""
+    from astropy.coordinates import EarthLocation
+    import astropy.units as u
+
+    lat = EarthLocation.from_geocentric(*lay.positions.mean(axis=0), unit=u.m).lat.deg
+    if 90.0 - abs(lat - dec_deg) <= 0.0:
+        raise InputError(f"field {name} (Dec {dec_deg:g} deg) never rises at the array's "
+                         f"latitude {lat:.1f} deg: choose another --field or --phase-centre")
+
+
+def _pointing(field, phase_centre):
+    """(preset or None, ra_deg in [0, 360), dec_deg, FIELD name)."""
     preset = None
     if field is not None:
-        key = field.lower()
-        if key not in FIELD_PRESETS:
+        if field.lower() not in FIELD_PRESETS:
             raise InputError(f"unknown field {field!r}: use one of "
                              f"{', '.join(FIELD_PRESETS)} or --phase-centre RA,DEC")
-        preset = FIELD_PRESETS[key]
-    if phase_centre is None and preset is None:
-        raise InputError("give --field ncp|3c196 or --phase-centre RA_DEG,DEC_DEG")
-    ra_deg, dec_deg = phase_centre if phase_centre is not None else (preset.ra_deg, preset.dec_deg)
+        preset = FIELD_PRESETS[field.lower()]
+    if phase_centre is not None:
+        if len(phase_centre) != 2:
+            raise InputError(f"--phase-centre needs RA_DEG,DEC_DEG, got {phase_centre!r}")
+        ra_deg, dec_deg = (float(v) for v in phase_centre)
+    else:
+        ra_deg, dec_deg = preset.ra_deg, preset.dec_deg
     if not (-90.0 <= dec_deg <= 90.0):
         raise InputError(f"declination {dec_deg} deg is outside -90..90")
     ra_deg = ra_deg % 360.0
-    if duration_h is None:
-        duration_h = preset.duration_h if preset is not None else 8.0
-    for name, value in (("--duration", duration_h), ("--interval", interval_s),
-                        ("--chan-width", chan_width_hz), ("--freq-min", freq_min_hz)):
+    name = preset.name if (preset is not None and phase_centre is None) else \
+        f"RA{ra_deg:.3f}_DEC{dec_deg:+.3f}"
+    return preset, ra_deg, dec_deg, name
+
+
+def _time_slots(duration, interval, freq_min, chan_width, nchan) -> int:
+    """The number of integrations, after checking every number."""
+    for name, value in (("--duration", duration), ("--interval", interval),
+                        ("--chan-width", chan_width), ("--freq-min", freq_min)):
         if not np.isfinite(value) or value <= 0:
             raise InputError(f"{name} must be positive, got {value}")
     if int(nchan) != nchan or nchan <= 0:
         raise InputError(f"--nchan must be a positive integer, got {nchan}")
-    slots = duration_h * 3600.0 / interval_s
+    slots = duration * 3600.0 / interval
     if not slots <= _MAX_TIME_SLOTS:
-        raise InputError(f"--duration {duration_h} h at --interval {interval_s} s is "
+        raise InputError(f"--duration {duration} h at --interval {interval} s is "
                          f"{slots:.3g} time slots; at most {_MAX_TIME_SLOTS:.0e} are supported")
     ntime = int(round(slots))
     if ntime < 1:
-        raise InputError(f"--duration {duration_h} h is shorter than one --interval of {interval_s} s")
+        raise InputError(f"--duration {duration} h is shorter than one --interval of {interval} s")
+    return ntime
+
+
+def _prepare_output(path: Path, overwrite: bool) -> None:
+    """Refuse an existing ``path`` unless ``overwrite`` (then remove it, if an MS)."""
     if path.exists():
         if not overwrite:
             raise InputError(f"{path} exists; pass --overwrite to replace it")
@@ -132,50 +262,20 @@ def simulate_ms(path: str | Path, *, field: str | None = "3c196",
     if not path.parent.exists():
         raise InputError(f"{path.parent}: no such directory")
 
-    lay: Layout = (read_layout_file(layout, stations) if layout is not None
-                   else lofar_hba_core(stations or "CS*HBA*"))
-    if len(lay) < 2:
-        raise InputError("an interferometer needs at least two stations")
 
-    ra, dec = np.radians(ra_deg), np.radians(dec_deg)
+def _start_time(start, preset, phase_centre, lay: Layout, ra_deg: float,
+                duration: float) -> float:
+    """Start (MJD s): ``start``, the NCP preset's, or centred on transit at the array."""
     if start is not None:
-        t_start = _parse_start(start)
-    elif preset is not None and not preset.centre_on_transit and phase_centre is None:
-        t_start = _parse_start(_NCP_START)
-    else:
-        from astropy.coordinates import EarthLocation
-        import astropy.units as u
+        return _parse_start(start)
+    if preset is not None and not preset.centre_on_transit and phase_centre is None:
+        return _parse_start(_NCP_START)
+    from astropy.coordinates import EarthLocation
+    import astropy.units as u
 
-        lon = EarthLocation.from_geocentric(*lay.positions.mean(axis=0), unit=u.m).lon
-        date = preset.date if preset is not None else _DEFAULT_DATE
-        t_start = transit_start(ra_deg, date, duration_h, lon.to_value(u.rad))
-    times = t_start + (np.arange(ntime) + 0.5) * interval_s
-    freq = freq_min_hz + np.arange(int(nchan)) * chan_width_hz
-
-    nant = len(lay)
-    a1, a2 = np.triu_indices(nant, k=0 if autocorrelations else 1)
-    nbl = len(a1)
-    nrows = ntime * nbl
-    name = preset.name if (preset is not None and phase_centre is None) else \
-        f"RA{ra_deg:.3f}_DEC{dec_deg:+.3f}"
-    log.info("creating %s: %d antennas, %d baselines, %d times x %.0f s, %d channels (%d rows)",
-             path, nant, nbl, ntime, interval_s, nchan, nrows)
-    from msleak.io.columns import check_free_space
-
-    # DATA (complex64), WEIGHT_SPECTRUM (float32), FLAG (bits), ~200 B of other columns a
-    # row, plus tiles and subtables: casacore aborts the process on a full disk.
-    check_free_space(path.parent, nrows * (int(nchan) * 4 * 12.2 + 200) + 1.5 * 2**20,
-                     f"the Measurement Set {path}")
-    try:
-        create_ms_tables(path, layout=lay, freq=freq, chan_width=chan_width_hz, ra=ra,
-                         dec=dec, field_name=name,
-                         time_range=(t_start, t_start + ntime * interval_s), nrows=nrows)
-        _fill_main(path, times, interval_s, a1, a2, lay.positions, ra, dec, int(nchan),
-                   chunk_rows, progress)
-    except BaseException:
-        log.error("simulate interrupted; %s is incomplete: rerun with --overwrite", path)
-        raise
-    return path
+    lon = EarthLocation.from_geocentric(*lay.positions.mean(axis=0), unit=u.m).lon
+    date = preset.date if preset is not None else _DEFAULT_DATE
+    return transit_start(ra_deg, date, duration, lon.to_value(u.rad))
 
 
 def _fill_main(path: Path, times, interval, a1, a2, positions, ra, dec, nchan, chunk_rows,

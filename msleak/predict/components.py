@@ -1,5 +1,5 @@
-"""Sky sources prepared for the kernel: unique directions, spectra on the MS channels,
-brightness factors.
+"""Sky components for the predict kernel: unique directions, spectra on the MS channels,
+brightness factors (docs/predict.md).
 
 A FITS cube gives one source per pixel with the cube's spectrum (each voxel a point
 source at its own channel, docs/science.md section 3); a makesourcedb file gives parametric spectra.
@@ -22,9 +22,11 @@ from typing import Sequence
 
 import numpy as np
 
+from msleak.errors import InputError
 from msleak.predict.kernels import brightness_factors, lmn_minus_one
 
-__all__ = ["SkyComponents", "SkySet", "sky_components", "sky_set", "prepare_sources"]
+__all__ = ["SkyComponents", "SkySet", "sky_components", "sky_sources", "sky_label", "sky_set",
+           "prepare_sources"]
 
 log = logging.getLogger(__name__)
 
@@ -145,19 +147,60 @@ def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: floa
     return SkyComponents(ra=ra, dec=dec, lmn1=lmn1, iquv=iquv, w=w, sign=sign)
 
 
-def sky_components(path: str | os.PathLike, freq: np.ndarray, ra0: float, dec0: float, *,
+def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
                    fov_deg: float | None = None, interpolate: bool = False) -> SkyComponents:
-    """Read a sky file (:func:`msleak.sky.sources.read_sky`) for one field and window.
+    """The sources of one sky for one field and spectral window.
+
+    ``sky`` as in :func:`sky_sources`; ``freq`` the channels (Hz), ``ra0, dec0`` the phase
+    centre (rad), ``fov_deg`` the central field kept (deg).
 
     Raises
     ------
     InputError
         Missing or unreadable sky, frequency mismatch, FoV larger than the cube, ...
     """
-    from msleak.sky.sources import read_sky
-
-    sources = read_sky(path, fov_deg=fov_deg, phase_centre=(ra0, dec0))
+    sources = sky_sources(sky, ra0, dec0, fov_deg)
     iquv = sources.at_frequencies(np.asarray(freq, dtype=np.float64), interpolate=interpolate)
     comp = prepare_sources(sources.ra, sources.dec, iquv, ra0, dec0)
-    log.info("sky %s: %d sources, %d directions with flux", path, len(sources), comp.ndir)
+    log.info("sky %s: %d sources, %d directions with flux", sky_label(sky), len(sources),
+             comp.ndir)
     return comp
+
+
+def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):
+    """:class:`~msleak.sky.sources.PointSources` of a sky about the phase centre ``ra0,
+    dec0`` (rad), cropped to the central ``fov_deg`` (deg).
+
+    ``sky``: a path (FITS cube or makesourcedb file), a sky Dataset
+    (:func:`msleak.make_sky`), a :class:`~msleak.sky.cube.SkyCube` or
+    :class:`~msleak.sky.sources.PointSources`.
+    """
+    import xarray as xr
+
+    from msleak.io.fits import cube_from_dataset
+    from msleak.io.skymodel import read_sky
+    from msleak.sky.cube import SkyCube, crop, recentre
+    from msleak.sky.sources import PointSources, sources_from_cube
+
+    if isinstance(sky, (str, os.PathLike)):
+        return read_sky(sky, fov_deg=fov_deg, phase_centre=(np.degrees(ra0), np.degrees(dec0)))
+    if isinstance(sky, xr.Dataset):
+        sky = cube_from_dataset(sky)
+    if isinstance(sky, SkyCube):
+        cube = recentre(sky, ra0, dec0)
+        return sources_from_cube(cube if fov_deg is None else crop(cube, fov_deg=fov_deg))
+    if isinstance(sky, PointSources):
+        if fov_deg is None:
+            return sky
+        half = np.radians(fov_deg) / 2
+        l_, m_, n_ = sky.lmn(ra0, dec0)
+        return sky.select((np.abs(l_) <= half) & (np.abs(m_) <= half) & (n_ > 0))
+    raise InputError(f"sky must be a path, a sky Dataset (msleak.make_sky), a SkyCube or "
+                     f"PointSources, not {type(sky).__name__}")
+
+
+def sky_label(sky) -> str:
+    """How a sky is named in messages and provenance: its path, or its type in memory."""
+    if isinstance(sky, (str, os.PathLike)):
+        return str(sky)
+    return f"<in-memory {type(sky).__name__}>"

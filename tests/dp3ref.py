@@ -4,7 +4,7 @@ DP3 ``predict`` with ``usebeammodel=true, beammode=full`` computes
 V_pq = sum_s J_p(s) B_s J_q(s)^H exp(...) for point sources of a makesourcedb file, and
 ``applybeam`` with ``invert=true`` at the phase centre applies J_p(s0)^-1 . J_q(s0)^-H:
 together they are msleak's default (centre-corrected) predict. Used by the tests and by
-``scripts/bench_predict.py`` / ``scripts/compare_dp3.py``; not needed at run time.
+``scripts/bench_predict.py``; not part of the package.
 
 The wheel needs three things from the environment, which :func:`dp3_environment` sets:
 ``OPENBLAS_NUM_THREADS=1``, ``EVERYBEAM_DATADIR`` (EveryBeam's coefficient files) and

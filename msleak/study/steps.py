@@ -1,12 +1,9 @@
-"""Resumable steps for multi-stage runs (``msleak paper``).
+"""Resumable steps for multi-stage runs (``msleak paper``; docs/paper.md "Resuming").
 
-A step is one msleak command line with declared input and output files. Before running
-it, :class:`StepRunner` computes a fingerprint of the command and of its inputs (path,
-size and modification time of every file under each input, and the fingerprints of the earlier steps it names in ``after``);
-if every output exists and
-the fingerprint equals the one recorded when the outputs were made, the step is skipped.
-The record lives in ``OUTDIR/.msleak-steps.json`` and is rewritten after every step, so
-an interrupted run resumes where it stopped.
+A step is one msleak command line with declared inputs and outputs. It is skipped when
+its outputs exist and the fingerprint of its command, its inputs (size and modification
+time of every file) and the earlier steps it names in ``after`` equals the one recorded
+in ``OUTDIR/.msleak-steps.json`` when the outputs were made.
 """
 
 from __future__ import annotations
@@ -64,10 +61,10 @@ def _fingerprint_path(path: Path) -> list:
 class StepRunner:
     """Run :class:`Step` objects in order, skipping those whose inputs are unchanged."""
 
-    def __init__(self, outdir: Path, force: bool = False):
+    def __init__(self, outdir: Path, overwrite: bool = False):
         self.outdir = Path(outdir)
         self.state_file = self.outdir / ".msleak-steps.json"
-        self.force = force
+        self.overwrite = overwrite
         self.state = {}
         if self.state_file.exists():
             try:
@@ -89,7 +86,7 @@ class StepRunner:
         record = self.state.get(step.name)
         done = (record is not None and record.get("fingerprint") == digest
                 and all(Path(p).exists() for p in step.outputs))
-        if done and not self.force:
+        if done and not self.overwrite:
             log.info("skip %s (up to date)", step.name)
             self.log.append({"name": step.name, "command": step.command, "skipped": True,
                              "seconds": record.get("seconds", 0.0)})

@@ -10,6 +10,8 @@ import time
 from pathlib import Path
 
 from msleak import __version__
+from msleak.plot.ps import plot_ps1d
+from msleak.study.config import FIELDS_OF_VIEW, StudyConfig
 
 __all__ = ["write_report"]
 
@@ -27,11 +29,8 @@ def _stats_rows(path: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
-def _extra_figures(cfg, out: Path) -> dict:
+def _extra_figures(cfg: StudyConfig, out: Path) -> dict:
     """1D PS of Q and U for the three fields of view, per field (docs/science.md section 8)."""
-    from msleak.pipeline import FIELDS_OF_VIEW
-    from msleak.plot.ps import plot_ps1d
-
     made = {}
     for fld in cfg.fields:
         inputs = [(out / fld / f"ps_{label}.h5", label) for label, _ in FIELDS_OF_VIEW]
@@ -102,10 +101,8 @@ def _summary(estimates: list, seeds: int) -> list[str]:
                     f"({float(t['estimate_err']):.2g}) |" for fld, t in estimates] + [""]
 
 
-def write_report(cfg, steps, step_log, seconds: float) -> Path:
+def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
     """Write ``OUTDIR/report.md`` and return its path."""
-    from msleak.pipeline import FIELDS_OF_VIEW
-
     out = Path(cfg.outdir)
     ps1d = _extra_figures(cfg, out)
     lines = [

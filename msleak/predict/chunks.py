@@ -1,0 +1,275 @@
+"""The time chunks of a predict run: what a task gets, and the task itself (docs/predict.md).
+
+:func:`iter_chunks` cuts the selected rows of one MS into time chunks that fit the memory
+budget (it reads TIME, ANTENNA1/2 per group and each chunk's UVW, in the driver);
+:func:`chunk_task` turns one chunk into visibilities for each sky (pure computation on
+the chunk's arrays, run on any scheduler of :mod:`msleak.parallel`): per-station
+coordinates from the rows' UVW, the beam towards every direction of the skies plus the
+phase centre (once for all skies), the visibility matrices of every sky, rows gathered
+with the phase-centre correction, rows whose UVW are not antenna-based summed from their
+own UVW (:mod:`msleak.predict.baselines`), circular feeds and the MS's correlation order.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time as _time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from msleak.conventions import CorrelationLayout
+from msleak.errors import InputError
+from msleak.io import columns as colio
+from msleak.predict import kernels
+from msleak.predict.baselines import predict_rows
+from msleak.predict.components import SkySet
+from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
+
+__all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time"]
+
+log = logging.getLogger(__name__)
+
+_BEAMS: dict = {}
+_BEAMS_LOCK = threading.Lock()
+
+
+@dataclass
+class Chunk:
+    """One time chunk of one (field, data description) of one MS: the input of a task."""
+
+    index: int
+    plan: int
+    key: str
+    ms: str
+    beam: str
+    beam_token: str
+    comp: SkySet
+    active: tuple
+    times: np.ndarray
+    freq: np.ndarray
+    stations: np.ndarray
+    fmeta: object
+    rows: np.ndarray
+    tidx: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    uvw: np.ndarray
+    centre_correction: bool
+    dtype: str
+    nc_chunk: int
+    layout: CorrelationLayout
+    last: bool = False
+    beam_options: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return f"{Path(self.ms).name} {self.key} chunk {self.index}"
+
+
+def _load_beam(name: str, ms: Path, options: dict | None = None):
+    if name == "none":
+        return None
+    try:
+        from msleak.beam import load_beam
+    except ImportError as err:  # pragma: no cover - the beam package is part of msleak
+        raise InputError(f"beam model {name!r} is not available ({err})") from err
+    return load_beam(name, ms, **(options or {}))
+
+
+def register_beam(token: str, beam: str, ms: Path, groups: list, diameter: float | None
+                  ) -> dict:
+    """Load the beam model of the stations in ``groups`` for run ``token`` in this process
+    and return the options that name them (so no worker reads the main table predict
+    writes)."""
+    from msleak.io.ms import read_used_antennas
+
+    options = {} if beam == "none" else {"stations": np.unique(np.concatenate(
+        [read_used_antennas(ms, f, d) for f, d in groups]))}
+    if diameter is not None:
+        options["diameter_m"] = float(diameter)
+    with _BEAMS_LOCK:
+        _BEAMS[token] = _load_beam(beam, ms, options)
+    return options
+
+
+def registered_beam(token: str):
+    """The beam model :func:`register_beam` loaded for ``token`` in this process (or None)."""
+    return _BEAMS.get(token)
+
+
+def _cached_beam(name: str, ms: str, token: str, options: dict | None = None):
+    """The beam model of ``ms`` for run ``token``, loaded once per process (any scheduler)."""
+    with _BEAMS_LOCK:
+        if token not in _BEAMS:
+            while len(_BEAMS) >= 8:
+                _BEAMS.pop(next(iter(_BEAMS)))
+            _BEAMS[token] = _load_beam(name, Path(ms), options)
+        return _BEAMS[token]
+
+
+def _group_rows(ms: Path, f: int, d: int) -> tuple[np.ndarray, ...]:
+    """Row numbers, TIME, ANTENNA1 and ANTENNA2 of the rows of field ``f``, data
+    description ``d``."""
+    from msleak.io.ms import iter_rows
+
+    parts = list(iter_rows(ms, ["TIME", "ANTENNA1", "ANTENNA2"], field_id=f, ddid=d,
+                           chunk_rows=1_000_000))
+    rows = np.concatenate([r for r, _ in parts]).astype(np.int64)
+    return (rows, *(np.concatenate([c[name] for _, c in parts])
+                    for name in ("TIME", "ANTENNA1", "ANTENNA2")))
+
+
+def iter_chunks(k: int, plan, memory_per_task: float, dtype, centre_correction, beam
+                ) -> Iterator[Chunk]:
+    """Time chunks of plan ``k`` (the MS ``plan.ms``, read through ``plan.table``), after
+    the time each active column's run state says it has reached."""
+    for f, d in plan.groups:
+        key = f"f{f}_d{d}"
+        comp = plan.skies[(f, d)]
+        for j in plan.active:
+            plan.results[j].n_sources[key] = comp.skies[j].ndir
+        freq = plan.spw_meta[plan.ddesc[d][0]].freq
+        rows_all, time_all, a1_all, a2_all = _group_rows(plan.ms, f, d)
+        times = np.unique(time_all)
+        rows_per_time = int(math.ceil(rows_all.size / max(1, times.size)))
+        lasts = [plan.states[plan.targets[j].column]["progress"].get(key)
+                 for j in plan.active] if plan.states else [None]
+        if all(last is not None for last in lasts):
+            times = times[times > min(lasts)]
+        stations = np.unique(np.concatenate([a1_all, a2_all]))
+        st_index = np.full(int(stations.max()) + 1, -1, dtype=np.int64)
+        st_index[stations] = np.arange(stations.size)
+        nt_chunk, nc_chunk = _chunk_size(plan, comp, times.size, freq.size, stations.size,
+                                         rows_per_time, rows_all.size, memory_per_task, dtype,
+                                         beam != "none")
+        log.info("%s field %d, data description %d: %d sky(s) with %s sources, %d directions "
+                 "in all, %d stations, %d times (%d per chunk), %d channels (%d per chunk), "
+                 "feeds %s, UVW tolerance %.3g mm (%g rad at %.3f MHz)", plan.ms.name, f, d,
+                 len(plan.active), "/".join(str(comp.skies[j].ndir) for j in plan.active),
+                 comp.ndir, stations.size, times.size, nt_chunk, freq.size, nc_chunk,
+                 plan.feeds[d], 1e3 * uvw_tolerance(freq.max(), comp.lmn1),
+                 PHASE_TOLERANCE_RAD, freq.max() / 1e6)
+        for t0 in range(0, times.size, nt_chunk):
+            tchunk = times[t0:t0 + nt_chunk]
+            in_chunk = (time_all >= tchunk[0]) & (time_all <= tchunk[-1])
+            rows = rows_all[in_chunk]
+            tick = _time.perf_counter()
+            uvw = colio.read_rows(plan.table, "UVW", rows)
+            add_time(plan.timings, "read", tick)
+            yield Chunk(index=0, plan=k, key=key, ms=str(plan.ms), beam=beam,
+                        beam_token=plan.beam_token, comp=comp, active=tuple(plan.active),
+                        times=tchunk, freq=freq, stations=stations, fmeta=plan.fields_meta[f],
+                        rows=rows, tidx=np.searchsorted(tchunk, time_all[in_chunk]),
+                        p=st_index[a1_all[in_chunk]], q=st_index[a2_all[in_chunk]], uvw=uvw,
+                        centre_correction=centre_correction, dtype=dtype.name,
+                        nc_chunk=nc_chunk, layout=plan.feeds[d],
+                        beam_options=plan.beam_options)
+
+
+def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
+                rows_per_time: int, nrows: int, memory_per_task: float, dtype,
+                has_beam: bool) -> tuple[int, int]:
+    """:func:`~msleak.predict.plan.plan_chunks` for a group: the skies, the rows' metadata
+    and the kernel's scratch memory are the fixed part."""
+    from msleak.predict.plan import plan_chunks
+
+    ndir_skies = sum(comp.skies[j].ndir for j in plan.active)
+    fixed = (comp.nbytes + nrows * 28
+             + kernels.scratch_bytes(nstation, comp.ndir, ndir_skies, dtype))
+    return plan_chunks(ntime, nchan, nstation, comp.ndir, rows_per_time, memory_per_task,
+                       dtype.itemsize, has_beam, fixed, nsky=len(plan.active))
+
+
+def chunk_task(job: Chunk, _shared=None) -> tuple[list, dict, int]:
+    """Visibilities (nrow, nchan, ncorr) of one chunk for each sky of ``job.active``, the
+    task's stage timings, and the number of rows predicted per baseline (pure computation
+    on the job's arrays; the beam model is loaded once per process)."""
+    beam_model = _cached_beam(job.beam, job.ms, job.beam_token, job.beam_options)
+    timings: dict = {}
+    vis, n_per_baseline = predict_chunk(job.comp, beam_model, job.times, job.freq,
+                                        job.stations, job.fmeta, job.tidx, job.p, job.q,
+                                        job.uvw, job.centre_correction, np.dtype(job.dtype),
+                                        job.nc_chunk, timings, job.active)
+    for k, values in enumerate(vis):
+        if job.layout.feed == "circular":
+            values = kernels.linear_to_circular(values)
+        vis[k] = job.layout.from_canonical(values)  # the MS's products, in its order
+    return vis, timings, n_per_baseline
+
+
+def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
+                  stations: np.ndarray, fmeta, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
+                  uvw: np.ndarray, centre_correction: bool, dtype: np.dtype,
+                  nc_chunk: int, timings: dict, active: Sequence[int] = (0,)
+                  ) -> tuple[list, int]:
+    """Visibilities (nrow, nchan, 4) of one time chunk (linear feeds) for each sky
+    ``comp.skies[k]``, k in ``active``, and the number of rows computed from their own UVW
+    (not antenna-based within the tolerance).
+
+    The beam is evaluated once towards every direction of ``comp``. Adds the stage wall
+    times to ``timings``.
+    """
+    tick = _time.perf_counter()
+    xyz, off = station_coordinates(tidx, p, q, uvw, times.size, stations.size,
+                                   tolerance_m=uvw_tolerance(freq.max(), comp.lmn1))
+    fast = np.flatnonzero(~off) if off.any() else slice(None)
+    add_time(timings, "uvw", tick)
+    skies = [(comp.index[k], comp.skies[k]) for k in active]
+    outs = [np.empty((tidx.size, freq.size, 4), dtype=dtype) for _ in skies]
+    for c0 in range(0, freq.size, nc_chunk):
+        c1 = min(freq.size, c0 + nc_chunk)
+        tick = _time.perf_counter()
+        jones, left = _beam(beam_model, comp, fmeta, times, freq[c0:c1], stations,
+                            centre_correction, dtype)
+        tick = add_time(timings, "beam", tick)
+        if not off.all():
+            grams = kernels.predict_grams(
+                jones, xyz, comp.lmn1, freq[c0:c1],
+                [(index, sky.w[:, c0:c1], sky.sign[:, c0:c1]) for index, sky in skies],
+                dtype=dtype)
+            for out, gram in zip(outs, grams):
+                out[fast, c0:c1] = kernels.gather_rows(gram, tidx[fast], p[fast], q[fast],
+                                                       jones_left=left)
+            del grams
+        tick = add_time(timings, "kernel", tick)
+        if off.any():
+            for out, (index, sky) in zip(outs, skies):
+                out[off, c0:c1] = predict_rows(
+                    None if jones is None else jones[..., index, :, :], tidx[off], p[off],
+                    q[off], uvw[off], sky.lmn1, freq[c0:c1], sky.iquv[:, c0:c1],
+                    jones_left=left, dtype=dtype)
+            add_time(timings, "per_baseline", tick)
+        del jones
+    return outs, int(off.sum())
+
+
+def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,
+          stations: np.ndarray, centre_correction: bool, dtype) -> tuple:
+    """Jones (nst, nt, nchan, ndir, 2, 2) towards every direction of ``comp`` and the
+    correction J(s0)^-1 (nst, nt, nchan, 2, 2) or None, from one beam call with the phase
+    centre appended; (None, None) without a beam or without directions."""
+    if beam_model is None or not comp.ndir:
+        return None, None
+    full = beam_model.jones(times, freq, np.append(comp.ra, fmeta.ra),
+                            np.append(comp.dec, fmeta.dec), stations=stations, dtype=dtype)
+    left = None
+    if centre_correction:
+        from msleak.beam.base import invert_2x2
+
+        left, singular = invert_2x2(full[..., -1, :, :].astype(np.complex128))
+        if singular.any():
+            log.warning("beam at the phase centre is singular for %d station/time/channel "
+                        "samples; their corrected visibilities are zero", int(singular.sum()))
+    return full[..., :-1, :, :], left
+
+
+def add_time(timings: dict, key: str, since: float) -> float:
+    """Add the time since ``since`` to ``timings[key]``; returns now."""
+    now = _time.perf_counter()
+    timings[key] = timings.get(key, 0.0) + now - since
+    return now

@@ -1,0 +1,308 @@
+"""Planning a predict run: the skies and their columns, the selected rows of each MS, the
+skies evaluated per field and spectral window, and the chunk size (docs/predict.md).
+
+Everything here reads; nothing writes. Every refusal of the input is raised here, before
+the first write.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import pickle
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from msleak import __version__
+from msleak.conventions import correlation_layout
+from msleak.errors import InputError
+from msleak.io import columns as colio
+from msleak.predict.chunks import register_beam
+from msleak.predict.components import SkySet, sky_components, sky_label, sky_set
+
+__all__ = ["plan_chunks", "Target", "Plan", "make_targets",
+           "make_plan"]
+
+log = logging.getLogger(__name__)
+
+def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time: int,
+                memory_limit: float, itemsize: int, beam: bool,
+                fixed_bytes: float = 0.0, nsky: int = 1) -> tuple[int, int]:
+    """Times and channels per chunk so that the working set stays under ``memory_limit``.
+
+    The per-(time, channel) estimate counts the beam Jones matrices towards the ``ndir``
+    directions of all skies (complex128 as the beam models compute them, the cast copy
+    and one temporary of the same size) and, for each of the ``nsky`` skies, its
+    visibility matrices and its gathered and written rows.
+
+    Returns
+    -------
+    (ntime_chunk, nchan_chunk) : tuple of int, both >= 1
+    """
+    per_unit = nsky * ((2 * nstation) ** 2 * itemsize + rows_per_time * 4 * (2 * itemsize + 8))
+    if beam:
+        per_unit += nstation * (ndir + 1) * 4 * (2 * 16 + itemsize)
+    avail = memory_limit - fixed_bytes
+    units = int(avail // per_unit) if avail > 0 else 0
+    if units < 1:
+        log.warning("memory limit %.0f MB is too small for one time slot and channel "
+                    "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
+                    (per_unit + fixed_bytes) / 2**20)
+        return 1, 1
+    if units >= nchan:
+        return max(1, min(ntime, units // nchan)), nchan
+    return 1, units
+
+
+@dataclass(frozen=True)
+class Target:
+    """One sky of a run and the column it is predicted into (None: returned in memory)."""
+
+    sky: object
+    column: str | None
+    fov_deg: float | None
+    sha256: str
+
+    @property
+    def label(self) -> str:
+        return sky_label(self.sky)
+
+
+@dataclass
+class Plan:
+    """What to predict into one MS, and its run states while it is being written."""
+
+    ms: Path
+    fields_meta: list
+    spw_meta: list
+    ddesc: list
+    groups: list
+    feeds: dict
+    total_rows: int
+    targets: list
+    skies: dict
+    settings: list
+    settings_json: list
+    beam_token: str
+    results: list
+    timings: dict
+    beam_options: dict = field(default_factory=dict)
+    #: per target: the Rollback of its column
+    rollbacks: list = field(default_factory=list)
+    #: targets this run computes (the others are complete from an identical run)
+    active: list = field(default_factory=list)
+    #: column -> run state, for the active targets
+    states: dict = field(default_factory=dict)
+    stack: contextlib.ExitStack | None = None
+    table: object = None
+    n_slots: int = 0
+    rows_per_baseline: int = 0
+
+
+def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
+    """The run's skies with their columns and fields of view, matched in order and checked.
+
+    ``column`` None (or a list of None) means the visibilities are returned, not written.
+    """
+    skies = list(sky) if isinstance(sky, (list, tuple)) else [sky]
+    columns = list(column) if isinstance(column, (list, tuple)) else [column] * (
+        len(skies) if column is None else 1)
+    fovs = list(fov) if np.ndim(fov) == 1 else [fov]
+    if not skies:
+        raise InputError("no sky given; pass --sky SKY")
+    if len(columns) != len(skies):
+        raise InputError(f"{len(skies)} --sky and {len(columns)} --column given; give one "
+                         "--column per --sky (they are matched in order)")
+    if len(fovs) == 1:
+        fovs = fovs * len(skies)
+    if len(fovs) != len(skies):
+        raise InputError(f"--fov is given {len(fovs)} times for {len(skies)} --sky; give it "
+                         "once (for every sky) or once per --sky (matched in order)")
+    names = [c for c in columns if c is not None]
+    if names and len(names) != len(columns):
+        raise InputError("give every sky a column, or none (column=None returns the "
+                         "visibilities)")
+    for name in names:
+        colio.check_column_name(name, overwrite_data=overwrite_data)
+    for name in names:
+        if names.count(name) > 1:
+            raise InputError(f"--column {name} is given {names.count(name)} times; give "
+                             "every --sky its own --column")
+    for value in fovs:
+        if value is not None and not (0 < value <= 180):
+            raise InputError(f"--fov must be in (0, 180] deg, got {value}")
+    return [Target(sky=s, column=c, fov_deg=None if f is None else float(f),
+                   sha256=_digest(s)) for s, c, f in zip(_sky_inputs(skies), columns, fovs)]
+
+
+def _sky_inputs(skies: list) -> list:
+    """Sky paths as Paths (checked to be files); in-memory skies as they are."""
+    out = []
+    for sky in skies:
+        if isinstance(sky, (str, os.PathLike)):
+            sky = Path(sky)
+            if not sky.exists():
+                raise InputError(f"sky file {sky} does not exist")
+            if sky.is_dir():
+                raise InputError(f"sky {sky} is a directory, not a FITS cube or makesourcedb "
+                                 "file")
+        out.append(sky)
+    return out
+
+
+def _digest(sky) -> str:
+    """SHA-256 of a sky file's bytes, or of an in-memory sky's pickle."""
+    digest = hashlib.sha256()
+    if not isinstance(sky, Path):
+        digest.update(pickle.dumps(sky, protocol=4))
+        return digest.hexdigest()
+    with open(sky, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def select_ids(values, names: list[str], what: str, present: np.ndarray) -> list[int]:
+    """FIELD/SPW selection by id or name (one value or a sequence); default all ids present
+    in the main table."""
+    present = sorted(int(v) for v in np.unique(present))
+    if values is None or (isinstance(values, (list, tuple)) and not values):
+        return present
+    out = []
+    for v in (values if isinstance(values, (list, tuple)) else [values]):
+        text = str(v).strip()
+        if text.lstrip("-").isdigit():
+            idx = int(text)
+        elif text in names:
+            idx = names.index(text)
+        else:
+            raise InputError(f"no {what} {text!r} in the MS (available: "
+                             f"{', '.join(f'{i}:{n}' if n else str(i) for i, n in enumerate(names))})")
+        if not 0 <= idx < len(names):
+            raise InputError(f"no {what} {idx} in the MS (ids 0..{len(names) - 1})")
+        if idx not in present:
+            raise InputError(f"{what} {idx} has no rows in the MS (present: "
+                             f"{', '.join(map(str, present))})")
+        out.append(idx)
+    return sorted(set(out))
+
+
+def _row_groups(ms: Path) -> dict[tuple[int, int], int]:
+    """Number of main-table rows of every (FIELD_ID, DATA_DESC_ID) present."""
+    from msleak.io.ms import iter_rows
+
+    counts: dict[tuple[int, int], int] = {}
+    for _, cols in iter_rows(ms, ["FIELD_ID", "DATA_DESC_ID"], chunk_rows=1_000_000):
+        pairs, n = np.unique(np.stack([cols["FIELD_ID"], cols["DATA_DESC_ID"]], axis=1),
+                             axis=0, return_counts=True)
+        for (f, d), k in zip(pairs, n):
+            counts[(int(f), int(d))] = counts.get((int(f), int(d)), 0) + int(k)
+    return counts
+
+
+def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
+                   ) -> tuple[list, int]:
+    """The selected (FIELD_ID, DATA_DESC_ID) groups in order, and their number of rows."""
+    counts = _row_groups(ms)
+    present = np.array(sorted(counts), dtype=int).reshape(-1, 2)
+    field_ids = select_ids(field_sel, [f.name for f in fields_meta], "field", present[:, 0])
+    spw_present = np.unique([ddesc[d][0] for d in np.unique(present[:, 1])])
+    spw_ids = select_ids(spw_sel, [s.name for s in spw_meta], "spectral window", spw_present)
+    groups = [(f, d) for f, d in sorted(counts) if f in field_ids and ddesc[d][0] in spw_ids]
+    if not groups:
+        raise InputError(f"{ms}: no rows match the field / spectral-window selection")
+    return groups, int(sum(counts[g] for g in groups))
+
+
+def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
+              dtype, field_sel, spw_sel, diameter) -> Plan:
+    """Read the metadata of ``ms``, select its groups and prepare the skies (no writes)."""
+    from msleak.io.ms import (read_corr_types, read_data_descriptions, read_fields,
+                              read_spectral_windows)
+    from msleak.predict.engine import PredictResult
+
+    fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
+    ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
+    _check_new_columns(ms, [t.column for t in targets if t.column is not None])
+    groups, total_rows = _select_groups(ms, fields_meta, spw_meta, ddesc, field_sel, spw_sel)
+    feeds = {d: correlation_layout(corr_types[ddesc[d][1]]) for _, d in groups}
+    for d in sorted({d for _, d in groups if not feeds[d].full}):
+        log.warning("%s: data description %d has only the correlations %s; predict computes "
+                    "the full coherency and writes those two (the cross hands are not "
+                    "stored)", ms, d, ",".join(feeds[d].names))
+    _check_rows(ms, groups)
+    skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
+                                  interpolate_frequency) for f, d in groups}
+    token = uuid.uuid4().hex
+    beam_options = register_beam(token, beam, ms, groups, diameter)
+    common = {"beam": beam, "centre_correction": bool(centre_correction and beam != "none"),
+              "interpolate_frequency": bool(interpolate_frequency),
+              "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
+              "diameter_m": -1.0 if diameter is None else float(diameter),
+              "msleak_version": __version__}
+    settings = [{"sky": str(t.sky.resolve()) if isinstance(t.sky, Path) else t.label,
+                 "sky_sha256": t.sha256,
+                 "fov_deg": -1.0 if t.fov_deg is None else t.fov_deg, **common}
+                for t in targets]
+    timings: dict = {}
+    return Plan(ms=ms, fields_meta=fields_meta, spw_meta=spw_meta, ddesc=ddesc,
+                groups=groups, feeds=feeds, total_rows=total_rows, targets=targets,
+                skies=skies, settings=settings,
+                settings_json=[json.dumps(s, sort_keys=True) for s in settings],
+                beam_token=token, beam_options=beam_options, timings=timings,
+                results=[PredictResult(ms=ms, column=t.column, rows_written=0, groups=groups,
+                                       timings=timings) for t in targets])
+
+
+def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool) -> SkySet:
+    """The skies of one field and spectral window (each (sky, fov) read once)."""
+    comps: dict = {}
+    for t in targets:
+        key = _sky_key(t)
+        if key not in comps:
+            comps[key] = sky_components(t.sky, freq, fmeta.ra, fmeta.dec, fov_deg=t.fov_deg,
+                                        interpolate=interpolate)
+    return sky_set([comps[_sky_key(t)] for t in targets])
+
+
+def _sky_key(target: Target) -> tuple:
+    return (target.sky if isinstance(target.sky, Path) else id(target.sky), target.fov_deg)
+
+
+def _check_new_columns(ms: Path, columns: list[str]) -> None:
+    """Refuse target columns of the wrong kind, and new columns that fit on the disk one by
+    one but not together."""
+    from msleak.io.ms import open_table
+
+    with open_table(ms) as table:
+        new = [c for c in columns if not colio.check_data_column(table, c)]
+        if len(new) < 2:
+            return
+        cell_bytes = 8 * int(np.prod(table.getcell("DATA", 0).shape)) if table.nrows() else 0
+        colio.check_free_space(table.name(), len(new) * (table.nrows() * cell_bytes
+                                                         + 1.1 * 2**20),
+                               f"columns {', '.join(new)}")
+
+
+def _check_rows(ms: Path, groups: list) -> None:
+    """Refuse rows predict cannot compute (TIME or UVW not finite), before any write."""
+    from msleak.io.ms import iter_rows
+
+    for f, d in groups:
+        for rows, cols in iter_rows(ms, ["TIME", "UVW"], field_id=f, ddid=d,
+                                    chunk_rows=1_000_000):
+            bad = ~(np.isfinite(cols["TIME"]) & np.isfinite(cols["UVW"]).all(axis=1))
+            if bad.any():
+                raise InputError(
+                    f"{ms}: {int(bad.sum())} rows of field {f}, data description {d} have a "
+                    f"TIME or UVW that is not a finite number (first: row {int(rows[bad][0])}); "
+                    "delete them first (TaQL: DELETE FROM <ms> WHERE NOT (isfinite(TIME) && "
+                    "all(isfinite(UVW)))) or leave that field or spectral window out with "
+                    "--field / --spw")

@@ -1,0 +1,48 @@
+"""Faults injected into a predict run with pytest's monkeypatch: a failure after some
+chunks were written, and a dask worker killed while it computes a given chunk."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from msleak.predict import chunks, runstate
+from msleak.predict.chunks import chunk_task
+
+__all__ = ["fail_after_chunks", "kill_worker_at"]
+
+
+def fail_after_chunks(monkeypatch, n: int) -> None:
+    """Raise ``RuntimeError("simulated failure")`` once ``n`` chunks are written (their run
+    states flushed), as an unexpected failure would."""
+    original = runstate.write_chunk
+    written = [0]
+
+    def write_chunk(plan, job, vis):
+        original(plan, job, vis)
+        written[0] += 1
+        if written[0] >= n:
+            raise RuntimeError("simulated failure (test)")
+
+    monkeypatch.setattr(runstate, "write_chunk", write_chunk)
+
+
+class _KillingTask:
+    """The chunk task, except that the process computing chunk ``index`` exits (once if
+    ``marker`` names a file, which is then created, else every time)."""
+
+    def __init__(self, index: int, marker: str | None):
+        self.index, self.marker, self.__name__ = index, marker, "chunk_task"
+
+    def __call__(self, job, shared=None):
+        if job.index == self.index and not (self.marker and Path(self.marker).exists()):
+            if self.marker:
+                Path(self.marker).touch()
+            os._exit(70)
+        return chunk_task(job, shared)
+
+
+def kill_worker_at(monkeypatch, index: int, marker: str | None = None) -> None:
+    """Make the dask worker that computes chunk ``index`` die (run on worker processes:
+    the task is pickled by reference to this module)."""
+    monkeypatch.setattr(chunks, "chunk_task", _KillingTask(index, marker))
