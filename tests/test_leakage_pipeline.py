@@ -6,7 +6,7 @@ import pytest
 from msleak.leakage import analyse, leakage_voxels
 from msleak.ps.power import power_spectrum
 from msleak.ps.transform import transform
-from msleak.ps.grid import uvcube_dataset
+from msleak.ps.grid_tasks import uvcube_dataset
 
 NCHAN, DNU, CELL, M = 50, 195312.5, 16.0, 12
 FREQ = 150e6 + DNU * np.arange(NCHAN)

@@ -7,7 +7,7 @@ import pytest
 
 from msleak.conventions import stokes_to_correlations_matrix
 from msleak.predict import kernels as K
-from msleak.predict.plan import plan_chunks
+from msleak.predict.chunks import plan_chunks
 from msleak.predict.components import prepare_sources
 from msleak.predict.stations import station_coordinates
 

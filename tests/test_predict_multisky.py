@@ -27,7 +27,7 @@ from msleak.errors import InputError
 from msleak.io import columns as colio
 from msleak.predict import chunks, engine
 from msleak.predict import kernels as K
-from msleak.predict.plan import plan_chunks
+from msleak.predict.chunks import plan_chunks
 from test_predict_kernels import _direct
 from test_predict_ms import _jones_fn
 from test_predict_safety import _fail_at, _snapshot

@@ -55,7 +55,7 @@ def test_image_path_matches_visibility_path(tmp_path):
     from msleak.ps.gridding import CellAccumulator, make_grid
     from msleak.ps.power import power_spectrum
     from msleak.ps.transform import transform
-    from msleak.ps.grid import uvcube_dataset
+    from msleak.ps.grid_tasks import uvcube_dataset
 
     n, cell = 32, 16.0
     dl = 1 / (n * cell)  # rad: the image's cells are then 16 wavelengths

@@ -41,7 +41,6 @@ def test_one_visibility_lands_in_its_cell_and_conjugate_in_mirror(gridder):
 def test_cell_gridder_equals_brute_force_loop():
     rng = np.random.default_rng(3)
     nrow, nchan = 300, 3
-    freq = 150e6 + 1e6 * np.arange(nchan)
     grid = make_grid(10.0, 60.0)
     u = rng.uniform(-70, 70, (nrow, nchan))
     v = rng.uniform(-70, 70, (nrow, nchan))

@@ -10,7 +10,7 @@ from msleak.ps.cosmology import cosmo_at, get_cosmology
 from msleak.ps.delay import delay_axis, delay_transform, spectral_window
 from msleak.ps.power import power_spectrum
 from msleak.ps.transform import transform
-from msleak.ps.grid import uvcube_dataset
+from msleak.ps.grid_tasks import uvcube_dataset
 
 NCHAN = 50
 DNU = 195312.5

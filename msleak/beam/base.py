@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 
+from msleak.beam.lofar_kernels import apply_left_inverse
 from msleak.errors import InputError
 
 __all__ = ["BeamName", "BeamModel", "IdentityBeam", "invert_2x2", "BEAM_NAMES",
@@ -136,7 +137,6 @@ class BeamModel(abc.ABC):
             raise InputError(f"beam: dtype must be complex, not {dtype}")
         if not centre_correction:
             return self._jones(time, freq, ra, dec, stations, dtype)
-        from msleak.beam.lofar_kernels import apply_left_inverse
 
         ra0, dec0 = self.phase_centre
         # the centre is evaluated in the same call, so both share one coordinate conversion

@@ -35,10 +35,17 @@ from typing import Literal
 import numpy as np
 
 from msleak.beam.base import BeamModel, BeamUnavailable
-from msleak.beam.coords import (clip_pole, enu_basis, exact_j2000_to_itrf, itrf_map,
-                                radec_to_unit, sky_basis)
+from msleak.beam.coords import (
+    clip_pole,
+    enu_basis,
+    exact_j2000_to_itrf,
+    itrf_map,
+    radec_to_unit,
+    sky_basis,
+)
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
+from msleak.io.ms import read_antennas, read_beam_directions
 
 __all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
 
@@ -177,8 +184,6 @@ class DipoleBeam(BeamModel):
         """The dipole beam of the stations ``used_stations`` (ANTENNA rows, default all) of
         ``ms``; phase centre and pointing (:func:`msleak.io.ms.read_beam_directions`:
         DELAY_DIR, else PHASE_DIR) of FIELD ``field_id``."""
-        from msleak.io.ms import read_antennas, read_beam_directions
-
         antennas = read_antennas(ms)
         directions = read_beam_directions(ms, field_id)
         return cls(antennas.positions, antennas.diameter, directions.delay, directions.phase,

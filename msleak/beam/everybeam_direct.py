@@ -20,11 +20,27 @@ from pathlib import Path
 
 import numpy as np
 
-from msleak._everybeam import (EVERYBEAM_TELESCOPES, MWA_BEAM_FILE_NAME, MWA_BEAM_FILE_VARIABLE,
-                               everybeam_telescope, import_everybeam)
+from msleak._everybeam import (
+    EVERYBEAM_TELESCOPES,
+    MWA_BEAM_FILE_NAME,
+    MWA_BEAM_FILE_VARIABLE,
+    everybeam_telescope,
+    import_everybeam,
+)
 from msleak.beam.base import BeamModel, BeamUnavailable
 from msleak.beam.coords import clip_pole, exact_j2000_to_itrf
+from msleak.beam.lofar_array import read_lofar_array
+from msleak.beam.lofar_fast import sky_rotation
 from msleak.errors import InputError
+from msleak.io.ms import (
+    has_subtable,
+    iter_rows,
+    read_antennas,
+    read_beam_directions,
+    read_fields,
+    read_spectral_windows,
+    read_telescope_name,
+)
 
 __all__ = ["EveryBeamDirect", "load_everybeam_telescope", "pole_basis", "POLE_BASIS_RAD"]
 
@@ -44,8 +60,6 @@ def load_everybeam_telescope(ms: str | os.PathLike, element_model: str = "defaul
         MS or environment lacks what that model reads (LOFAR tables, MWA dipole delays, the
         MWA coefficients file); any error of EveryBeam itself likewise.
     """
-    from msleak.io.ms import has_subtable, read_telescope_name
-
     name = read_telescope_name(ms)
     kind = everybeam_telescope(name)
     if kind is None:
@@ -121,9 +135,6 @@ class EveryBeamDirect(BeamModel):
 
     def __init__(self, ms: str | os.PathLike, element_model: str = "default",
                  field_id: int = 0, used_stations=None):
-        from msleak.io.ms import (iter_rows, read_antennas, read_beam_directions, read_fields,
-                                  read_spectral_windows)
-
         self.telescope = load_everybeam_telescope(ms, element_model)
         self._setting = _MWA_SETTING if type(self.telescope).__name__ == "MWA" else ""
         antennas = read_antennas(ms)
@@ -142,8 +153,6 @@ class EveryBeamDirect(BeamModel):
     @staticmethod
     def _station_axes(ms, field_id: int):
         """Per station the common axes (3, 3) of its LOFAR fields, or None."""
-        from msleak.beam.lofar_array import read_lofar_array
-
         try:
             array = read_lofar_array(ms, field_id)
         except InputError:
@@ -187,8 +196,6 @@ class EveryBeamDirect(BeamModel):
         return out.astype(dtype, copy=False)
 
     def _pole_response(self, t, stations, freq, ra, dec, d, s0, t0):
-        from msleak.beam.lofar_fast import sky_rotation
-
         raw = np.asarray(_everybeam_call(self.ms, self.telescope.station_response,
                                          np.array([t]), stations.astype(np.uint64), freq, d,
                                          s0, t0, False, setting=self._setting))[0]

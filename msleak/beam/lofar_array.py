@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from msleak.beam.base import BeamUnavailable
+from msleak.io.lofar import read_lofar_antenna_fields, read_lofar_phase_references
+from msleak.io.ms import check_ms, has_lofar_tables, read_antennas, read_beam_directions
 
 __all__ = ["LofarField", "LofarStation", "LofarArray", "lofar_array", "read_lofar_array"]
 
@@ -111,9 +113,6 @@ def read_lofar_array(ms: str | os.PathLike, field_id: int = 0) -> LofarArray:
     BeamUnavailable
         The MS lacks a LOFAR table or column the LOFAR beam needs.
     """
-    from msleak.io.lofar import read_lofar_antenna_fields, read_lofar_phase_references
-    from msleak.io.ms import check_ms, has_lofar_tables, read_antennas, read_beam_directions
-
     ms = check_ms(ms)
     if not has_lofar_tables(ms):
         raise BeamUnavailable(f"{ms}: no LOFAR_ANTENNA_FIELD table (with "

@@ -23,9 +23,9 @@ import numpy as np
 
 from msleak._everybeam import import_everybeam
 from msleak.beam.base import BeamModel
-from msleak.beam.coords import (clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit,
-                                sky_basis)
+from msleak.beam.coords import clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit, sky_basis
 from msleak.beam.lofar_array import LofarArray
+from msleak.beam.lofar_kernels import station_jones_kernel
 from msleak.errors import InputError
 
 __all__ = ["LofarFastBeam", "element_jones", "sky_rotation", "field_angles"]
@@ -190,8 +190,6 @@ class LofarFastBeam(BeamModel):
         return d, s0, t0, ncp
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
-        from msleak.beam.lofar_kernels import station_jones_kernel
-
         out = np.empty((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
         if out.size == 0:
             return out

@@ -18,12 +18,31 @@ from typing import Literal, Sequence, get_args
 import numpy as np
 import xarray as xr
 
+from msleak.beam import load_beam
 from msleak.beam.base import BeamModel
 from msleak.beam.coords import basis_rotation, transport_angle
-from msleak.beam.mueller import (jones_to_mueller, leakage, polarized_beam,
-                                 polarized_beam_invariant, to_db)
-from msleak.conventions import STOKES_CONVENTION, FeedType
+from msleak.beam.mueller import (
+    jones_to_mueller,
+    leakage,
+    polarized_beam,
+    polarized_beam_invariant,
+    to_db,
+)
+from msleak.conventions import STOKES_CONVENTION, FeedType, feed_type_from_corr_types
 from msleak.errors import InputError
+from msleak.io.ms import (
+    check_ms,
+    read_antennas,
+    read_corr_types,
+    read_data_descriptions,
+    read_fields,
+    read_history,
+    read_spectral_windows,
+    read_times,
+    read_used_antennas,
+    resolve_field,
+)
+from msleak.io.products import call_record, save_product, stamp
 
 __all__ = ["BASES", "Basis", "MAP_BEAMS", "sin_grid", "hour_angle_h", "times_for_hour_angles",
            "default_times", "mueller_maps", "beam_maps", "SIDEREAL_RATIO"]
@@ -253,10 +272,6 @@ def beam_maps(ms: str | os.PathLike, *, fov: float = 15.0, npix: int = 61,
         The ``beam`` product: maps (hour_angle, m, l), ``mueller`` (hour_angle, m, l, 4, 4)
         (docs/beam.md).
     """
-    from msleak.beam import load_beam
-    from msleak.io.ms import check_ms, resolve_field
-    from msleak.io.products import call_record, save_product, stamp
-
     command = call_record(beam_maps, dict(locals()))
     _check_options(fov, npix, freq, beam, diameter, basis)
     if output is not None and Path(output).exists() and not overwrite:
@@ -307,10 +322,6 @@ class _Plan:
 
 def _plan(ms: Path, field_id: int, station: str | None, freq: float | None) -> _Plan:
     """Stations, array centre, frequency and feed type of the maps of FIELD ``field_id``."""
-    from msleak.conventions import feed_type_from_corr_types
-    from msleak.io.ms import (read_antennas, read_corr_types, read_data_descriptions,
-                              read_fields, read_spectral_windows, read_used_antennas)
-
     antennas = read_antennas(ms)
     in_rows = read_used_antennas(ms, field_id=field_id)
     used = in_rows
@@ -333,8 +344,6 @@ def _plan(ms: Path, field_id: int, station: str | None, freq: float | None) -> _
 
 def _map_times(ms: Path, field_id: int, hour_angles, ra0: float, position):
     """(times in MJD s, hour angles in h) of the maps."""
-    from msleak.io.ms import read_times
-
     times = read_times(ms, field_id=field_id)
     if hour_angles is None or len(hour_angles) == 0:
         times = default_times(times)
@@ -347,6 +356,4 @@ def _map_times(ms: Path, field_id: int, hour_angles, ra0: float, position):
 
 def _ms_history(ms: Path) -> list[str]:
     """The HISTORY rows of ``ms``, one line each, prefixed with the MS."""
-    from msleak.io.ms import read_history
-
     return [f"{Path(ms).resolve()} HISTORY {line}" for line in read_history(ms)]

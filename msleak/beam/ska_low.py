@@ -29,9 +29,17 @@ import numpy as np
 
 from msleak._everybeam import import_everybeam
 from msleak.beam.base import BeamModel, BeamUnavailable
-from msleak.beam.coords import (clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit,
-                                sky_basis)
+from msleak.beam.coords import clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit, sky_basis
+from msleak.beam.ska_low_kernels import ska_low_station_kernel
 from msleak.errors import InputError
+from msleak.io.ms import (
+    check_ms,
+    read_antennas,
+    read_beam_directions,
+    read_spectral_windows,
+    read_telescope_name,
+)
+from msleak.io.phased_array import has_phased_array, read_phased_array
 
 __all__ = ["ElementModel", "ELEMENT_MODELS", "REFUSED_MODELS", "SKALA40_FREQUENCIES_HZ",
            "SkaLowBeam", "check_element_model", "check_band", "element_frequency_sets",
@@ -268,10 +276,6 @@ class SkaLowBeam(BeamModel):
         InputError
             A refused or unknown element model, or channels outside its band.
         """
-        from msleak.io.ms import (check_ms, read_antennas, read_beam_directions,
-                                  read_spectral_windows, read_telescope_name)
-        from msleak.io.phased_array import has_phased_array, read_phased_array
-
         ms = check_ms(ms)
         telescope = read_telescope_name(ms)
         if telescope.upper() != "SKA-LOW":
@@ -303,8 +307,6 @@ class SkaLowBeam(BeamModel):
         return fitmap(u), fitmap(s0u), ncp
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
-        from msleak.beam.ska_low_kernels import ska_low_station_kernel
-
         check_band(self.model, freq)
         out = np.empty((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
         if out.size == 0:

@@ -6,6 +6,9 @@ from typing import Sequence
 
 import click
 
+from msleak.errors import InputError
+from msleak.parallel.runner import parse_memory
+
 __all__ = ["parse_float_list", "FloatList", "MemorySize", "cosmology_options"]
 
 
@@ -43,9 +46,6 @@ class MemorySize(click.ParamType):
     name = "SIZE"
 
     def convert(self, value, param, ctx) -> int:
-        from msleak.errors import InputError
-        from msleak.parallel.runner import parse_memory
-
         try:
             return parse_memory(value)
         except InputError as err:

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import click
 
-from msleak.beam.maps import BASES, MAP_BEAMS
+from msleak.beam.maps import BASES, MAP_BEAMS, beam_maps
 from msleak.cli._common import FloatList
 from msleak.errors import InputError
+from msleak.plot.beam import plot_beam_maps
 
 
 @click.command()
@@ -63,9 +64,6 @@ def beam(ms, output, product, fov, npix, hour_angles, freq, beam, station, diame
       msleak beam ncp.ms -o beam.png --fov 10 --hour-angles -6,-3,0,3,6
       msleak beam ska.ms -o beam.png --beam dipole --diameter 38
     """
-    from msleak.beam.maps import beam_maps
-    from msleak.plot.beam import plot_beam_maps
-
     figure = Path(output)
     product = Path(product) if product else figure.with_suffix(".h5")
     vector = figure.with_suffix(".pdf") if pdf and figure.suffix.lower() != ".pdf" else None

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import sys
+from typing import get_args
 
 import click
 
-from msleak.cli._common import FloatList
-from msleak.cli._common import MemorySize
+from msleak.cli._common import FloatList, MemorySize
 from msleak.parallel.options import parallel_options
+from msleak.ps.beam_area import BEAM_AREA_MODELS
+from msleak.ps.grid import Split
+from msleak.ps.grid import grid as grid_verb
+from msleak.ps.gridding import Gridder
 
 
 @click.command()
@@ -28,10 +32,10 @@ from msleak.parallel.options import parallel_options
               help="uv cell size in wavelengths (16 = a LOFAR core HBA station diameter).")
 @click.option("--uv-range", "uv_range", type=FloatList(2), default="30,180", show_default=True,
               metavar="MIN,MAX", help="Baselines used, in wavelengths (per channel).")
-@click.option("--gridder", type=click.Choice(["wgrid", "cell"]), default="wgrid",
+@click.option("--gridder", type=click.Choice(get_args(Gridder)), default="wgrid",
               show_default=True, help="wgrid: w-corrected through ducc0's wgridder with a "
               "one-cell cos^2 kernel; cell: nearest cell, no w-correction (docs/grid.md).")
-@click.option("--split", type=click.Choice(["even-odd", "first-second"]), default=None,
+@click.option("--split", type=click.Choice(get_args(Split)), default=None,
               help="Also grid two halves of the time steps (vis_a, vis_b) so `msleak ps` "
               "can form a noise-bias-free cross-power.")
 @click.option("--field", default="0", show_default=True, metavar="ID|NAME",
@@ -66,7 +70,7 @@ from msleak.parallel.options import parallel_options
               metavar="N", help="Threads of the wgrid gridder per chunk (parallelism comes "
               "from the chunks, --workers). The cube depends on it at the --epsilon level: "
               "ducc0 chooses its kernel by thread count.")
-@click.option("--beam-area-model", type=click.Choice(["auto", "everybeam", "dipole", "airy"]),
+@click.option("--beam-area-model", type=click.Choice(BEAM_AREA_MODELS),
               default="auto", show_default=True,
               help="Station beam for Omega when --beam-area is not given: the MS's own beam "
               "model (auto: everybeam with LOFAR tables, else dipole), or an Airy disc of a "
@@ -92,8 +96,6 @@ def grid(ms, outputs, overwrite, columns, cell, uv_range, gridder, split, field,
       msleak grid --image q.fits --image u.fits --stokes Q,U --fov 4 -o grid.h5
       msleak grid --image 'obs-*-[QU]-image.fits' --fov 4 -o grid.h5
     """
-    from msleak.ps.grid import grid as grid_verb
-
     if bool(ms) == bool(images):
         raise click.UsageError("give either an MS or --image CUBE.fits (not both)")
     if images:

@@ -3,10 +3,14 @@
 
 from __future__ import annotations
 
+from typing import get_args
+
 import click
 
 from msleak.cli._common import FloatList
 from msleak.leakage.analysis import leakage as leakage_verb
+from msleak.leakage.fraction import NegativePolicy, StatsFrom
+from msleak.leakage.observed import ModelMode
 from msleak.leakage.outputs import estimate_summary
 
 __all__ = ["leakage"]
@@ -45,10 +49,10 @@ def _ints(ctx, param, value):
               "(estimates.csv). Labels need only be unique within a realisation.")
 @click.option("--field-name", default="", metavar="NAME",
               help="Name of the field (e.g. NCP), used in tables and figure titles.")
-@click.option("--stats-from", type=click.Choice(["voxels", "bins"]), default="voxels",
+@click.option("--stats-from", type=click.Choice(get_args(StatsFrom)), default="voxels",
               show_default=True,
               help="Statistics of the unaveraged 3D voxels (power3d) or of the 2D bins.")
-@click.option("--negative", type=click.Choice(["mask", "clip"]), default="mask",
+@click.option("--negative", type=click.Choice(get_args(NegativePolicy)), default="mask",
               show_default=True,
               help="Negative P_I (cross-power): mask the voxel, or clip it to L_I = 0. "
                    "Non-positive P_P is always masked.")
@@ -67,7 +71,7 @@ def _ints(ctx, param, value):
               "leakage PS (L_I_model/100)^2 x P_P,obs and its spherical average.")
 @click.option("--expected-labels", callback=_labels, metavar="L1,L2,...",
               help="Labels of the observed PS products [default: file names].")
-@click.option("--expected-model", type=click.Choice(["auto", "map", "median", "field"]),
+@click.option("--expected-model", type=click.Choice(get_args(ModelMode)),
               default="auto", show_default=True,
               help="L_I model: the paired input's 2D map (same k grid), its fitted median, "
                    "or the per-field estimate; auto = map if the grids match, else median "

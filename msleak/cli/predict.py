@@ -6,8 +6,10 @@ import sys
 
 import click
 
+from msleak.beam.base import BEAM_NAMES
 from msleak.cli._common import MemorySize
 from msleak.parallel.options import parallel_options
+from msleak.predict.engine import predict as run
 
 __all__ = ["predict"]
 
@@ -28,7 +30,7 @@ def _split(_ctx, _param, value):
 @click.option("--fov", "fov", type=float, multiple=True, metavar="DEG",
               help="Keep the central DEG x DEG degrees of the sky (default: all of it); "
                    "once for every sky, or once per --sky in the same order.")
-@click.option("--beam", type=click.Choice(["everybeam", "everybeam-direct", "dipole", "none"]),
+@click.option("--beam", type=click.Choice(BEAM_NAMES),
               default="everybeam", show_default=True,
               help="Station beam: fast LOFAR EveryBeam model, EveryBeam called directly, an "
                    "analytic dipole, or no beam.")
@@ -92,8 +94,6 @@ def predict(ms, sky, fov, beam, diameter, column, centre_correction, interpolate
       msleak predict obs.ms --sky s1.fits --column M1 --sky s2.fits --column M2 --fov 4
       msleak predict SB*.ms --sky sky.fits --scheduler tcp://head:8786
     """
-    from msleak.predict.engine import predict as run
-
     results = run(list(ms), list(sky), column=list(column) or ["MODEL_DATA"] * (len(sky) == 1),
                   fov=list(fov) or None, beam=beam, diameter=diameter,
                   centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from msleak.cli._common import FloatList, cosmology_options
+from msleak.ps.power import power_spectrum
 
 
 @click.command()
@@ -55,8 +56,6 @@ def ps(delay, output, overwrite, cosmology, h0, om0, ob0, tcmb0, little_h, bins,
       msleak ps delay.h5 -o ps.h5 --plot ps.png
       msleak ps delay.h5 -o ps_h.h5 --h0 70 --om0 0.3 --little-h
     """
-    from msleak.ps.power import power_spectrum
-
     ds = power_spectrum(delay, cosmology=cosmology, h0=h0, om0=om0, ob0=ob0, tcmb0=tcmb0,
                         little_h=little_h, bins=bins, bin_width=bin_width, log_bins=log_bins,
                         sph_bins=sph_bins, kperp_1d=tuple(kperp_1d) if kperp_1d else None,

@@ -8,6 +8,8 @@ import sys
 import click
 
 from msleak.cli._common import FloatList
+from msleak.io.ms import ms_summary
+from msleak.telescope import simulate as verb
 from msleak.telescope.simulate import FIELD_PRESETS, TELESCOPES
 
 log = logging.getLogger(__name__)
@@ -63,9 +65,6 @@ def simulate(out, telescope, field, phase_centre, start, duration, interval, fre
       msleak simulate ska.ms --telescope ska-low --stations 'S00*' --duration 2
       msleak simulate toy.ms --layout my_array.txt --phase-centre 60,-30
     """
-    from msleak.io.ms import ms_summary
-    from msleak.telescope import simulate as verb
-
     path = verb.simulate(out, field=field,
                          phase_centre=tuple(phase_centre) if phase_centre else None,
                          start=start, duration=duration, interval=interval,

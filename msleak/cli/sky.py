@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import get_args
 
 import click
 from astropy.io import fits
@@ -11,6 +12,7 @@ from msleak.cli._common import FloatList
 from msleak.errors import InputError
 from msleak.io.fits import is_fits
 from msleak.plot.sky import plot_sky
+from msleak.sky.cube import Units
 from msleak.sky.make import make_sky, select_skymodel, skymodel_paths
 
 __all__ = ["sky"]
@@ -70,7 +72,7 @@ def _report(ds, out, generated: bool) -> None:
 @click.option("--phase-centre", type=FloatList(2), default=None, metavar="RA_DEG,DEC_DEG",
               help="Centre of the cube, J2000 deg [default 0,90 (NCP) when generating; "
                    "with --crop: re-centre the cube's grid there].")
-@click.option("--units", type=click.Choice(["K", "Jy/pixel"]), default=None,
+@click.option("--units", type=click.Choice(get_args(Units)), default=None,
               help="Brightness unit of the written cube [default K; with --crop the input's]. "
                    "Jy/pixel uses S = 2 k_B T Omega_pix / lambda^2.")
 @click.option("--depth-pc", type=float, default=1000.0, show_default=True, metavar="PC",

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from typing import get_args
+
 import click
 
 from msleak.ps.delay import WINDOWS
+from msleak.ps.transform import Partial
+from msleak.ps.transform import transform as verb
 
 
 @click.command()
@@ -15,7 +19,7 @@ from msleak.ps.delay import WINDOWS
 @click.option("--window", type=click.Choice(sorted(WINDOWS), case_sensitive=False),
               default="blackman-harris", show_default=True,
               help="Spectral window applied before the FFT ('none' for no taper).")
-@click.option("--partial", type=click.Choice(["drop", "zero"]), default="drop",
+@click.option("--partial", type=click.Choice(get_args(Partial)), default="drop",
               show_default=True, help="Cells empty in some (unflagged) channels: drop them, "
               "or fill the empty channels with zeros.")
 def transform(grid, output, overwrite, window, partial):
@@ -27,8 +31,6 @@ def transform(grid, output, overwrite, window, partial):
     Example:
       msleak transform grid.h5 -o delay.h5 --window blackman-harris
     """
-    from msleak.ps.transform import transform as verb
-
     ds = verb(grid, window=window, partial=partial, output=output, overwrite=overwrite)
     click.echo(f"delay cube {output}: {ds.sizes['delay']} delays, window {ds.attrs['window']} "
                f"(norm {ds.attrs['window_norm']:.4f}), {ds.attrs['n_cells_used']} cells used")

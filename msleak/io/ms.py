@@ -17,6 +17,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from msleak import __version__
 from msleak.conventions import CORR_NAMES
 from msleak.errors import InputError
 
@@ -373,8 +374,6 @@ def append_history(ms: str | os.PathLike, message: str, *, command: str = "") ->
 
     Does nothing when the MS has no HISTORY subtable (it is optional in the MS definition).
     """
-    from msleak import __version__
-
     ms = check_ms(ms)
     path = ms / "HISTORY"
     if not path.exists():

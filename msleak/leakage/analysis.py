@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
-from pathlib import Path
-from typing import Literal, Sequence, Union
+from typing import Sequence, Union
 
 import numpy as np
 import xarray as xr
@@ -17,11 +16,17 @@ import xarray as xr
 from msleak.errors import InputError
 from msleak.io.products import call_record, history_lines, open_product, stamp
 from msleak.leakage.bootstrap import cell_groups, on_uv_grid, uv_cell_size
-from msleak.leakage.fraction import (MASK_CODES, NegativePolicy, leakage_fraction,
-                                     leakage_map, leakage_voxels, voxel_power)
+from msleak.leakage.fraction import (
+    MASK_CODES,
+    NegativePolicy,
+    StatsFrom,
+    leakage_fraction,
+    leakage_map,
+    leakage_voxels,
+    voxel_power,
+)
 from msleak.leakage.observed import ModelMode, bias_correct, expected_leakage
-from msleak.leakage.outputs import (OUTPUT_FILES, default_labels, refuse_existing,
-                                    write_leakage)
+from msleak.leakage.outputs import default_labels, refuse_existing, write_leakage
 from msleak.leakage.stats import LeakageStatistics, field_estimate, leakage_statistics
 
 __all__ = ["leakage", "analyse", "realisation_estimates", "voxel_groups", "VOXEL_DEFINITION"]
@@ -51,7 +56,7 @@ _MASK_DOC = ", ".join(f"{c}={n}" for n, c in MASK_CODES.items())
 
 def leakage(ps: PsInput | Sequence[PsInput], *, labels: Sequence[str] | None = None,
             realisations: Sequence[int] | None = None, field_name: str = "",
-            stats_from: Literal["voxels", "bins"] = "voxels",
+            stats_from: StatsFrom = "voxels",
             negative: NegativePolicy = "mask", bins: int = 100, hist_quantile: float = 0.99,
             k_par_range: tuple[float, float] | None = None,
             k_perp_range: tuple[float, float] | None = None,
@@ -221,7 +226,7 @@ def _input_history(datasets: Sequence[xr.Dataset], labels: Sequence[str],
 
 
 def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequence[str],
-            *, stats_from: Literal["voxels", "bins"] = "voxels",
+            *, stats_from: StatsFrom = "voxels",
             negative: NegativePolicy = "mask", bins: int = 100, upper_quantile: float = 0.99,
             k_par_range: tuple[float, float] | None = None,
             k_perp_range: tuple[float, float] | None = None,

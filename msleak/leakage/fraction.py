@@ -39,6 +39,8 @@ MASK_CODES = {
 }
 
 NegativePolicy = Literal["mask", "clip"]
+#: the sample L_I statistics are taken from: 3D voxels or 2D (k_par, k_perp) bins
+StatsFrom = Literal["voxels", "bins"]
 
 
 def leakage_fraction(p_i: np.ndarray, p_p: np.ndarray, counts: np.ndarray | None = None,
@@ -196,7 +198,7 @@ def _in_range(x: np.ndarray, rng: tuple[float, float] | None) -> np.ndarray:
     return (x >= rng[0]) & (x <= rng[1])
 
 
-def leakage_voxels(ds: xr.Dataset, source: Literal["voxels", "bins"] = "voxels",
+def leakage_voxels(ds: xr.Dataset, source: StatsFrom = "voxels",
                    negative: NegativePolicy = "mask",
                    k_par_range: tuple[float, float] | None = None,
                    k_perp_range: tuple[float, float] | None = None,

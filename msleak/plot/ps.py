@@ -9,6 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
+from msleak.io.products import open_product
 from msleak.plot import new_figure, save_figure
 
 __all__ = ["plot_ps2d", "plot_ps1d"]
@@ -27,8 +28,6 @@ _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
 
 def _open(ps):
     if isinstance(ps, (str, os.PathLike)):
-        from msleak.io.products import open_product
-
         return open_product(ps, "ps")
     return ps
 

@@ -8,7 +8,8 @@ sources, ``plan`` the checks and plan of a run, ``chunks`` the time-chunk tasks,
 """
 
 from msleak._callable import make_callable
-from msleak.predict.engine import PredictResult, predict
+from msleak.predict.engine import predict
+from msleak.predict.plan import PredictResult
 
 __all__ = ["predict", "PredictResult"]
 

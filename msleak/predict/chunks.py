@@ -22,15 +22,17 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from msleak.beam import load_beam
+from msleak.beam.base import invert_2x2
 from msleak.conventions import CorrelationLayout
-from msleak.errors import InputError
 from msleak.io import columns as colio
+from msleak.io.ms import iter_rows, read_used_antennas
 from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
 
-__all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time"]
+__all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time", "plan_chunks"]
 
 log = logging.getLogger(__name__)
 
@@ -71,13 +73,38 @@ class Chunk:
         return f"{Path(self.ms).name} {self.key} chunk {self.index}"
 
 
+def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time: int,
+                memory_limit: float, itemsize: int, beam: bool,
+                fixed_bytes: float = 0.0, nsky: int = 1) -> tuple[int, int]:
+    """Times and channels per chunk so that the working set stays under ``memory_limit``.
+
+    The per-(time, channel) estimate counts the beam Jones matrices towards the ``ndir``
+    directions of all skies (complex128 as the beam models compute them, the cast copy
+    and one temporary of the same size) and, for each of the ``nsky`` skies, its
+    visibility matrices and its gathered and written rows.
+
+    Returns
+    -------
+    (ntime_chunk, nchan_chunk) : tuple of int, both >= 1
+    """
+    per_unit = nsky * ((2 * nstation) ** 2 * itemsize + rows_per_time * 4 * (2 * itemsize + 8))
+    if beam:
+        per_unit += nstation * (ndir + 1) * 4 * (2 * 16 + itemsize)
+    avail = memory_limit - fixed_bytes
+    units = int(avail // per_unit) if avail > 0 else 0
+    if units < 1:
+        log.warning("memory limit %.0f MB is too small for one time slot and channel "
+                    "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
+                    (per_unit + fixed_bytes) / 2**20)
+        return 1, 1
+    if units >= nchan:
+        return max(1, min(ntime, units // nchan)), nchan
+    return 1, units
+
+
 def _load_beam(name: str, ms: Path, options: dict | None = None):
     if name == "none":
         return None
-    try:
-        from msleak.beam import load_beam
-    except ImportError as err:  # pragma: no cover - the beam package is part of msleak
-        raise InputError(f"beam model {name!r} is not available ({err})") from err
     return load_beam(name, ms, **(options or {}))
 
 
@@ -86,8 +113,6 @@ def register_beam(token: str, beam: str, ms: Path, groups: list, diameter: float
     """Load the beam model of the stations in ``groups`` for run ``token`` in this process
     and return the options that name them (so no worker reads the main table predict
     writes)."""
-    from msleak.io.ms import read_used_antennas
-
     options = {} if beam == "none" else {"stations": np.unique(np.concatenate(
         [read_used_antennas(ms, f, d) for f, d in groups]))}
     if diameter is not None:
@@ -115,8 +140,6 @@ def _cached_beam(name: str, ms: str, token: str, options: dict | None = None):
 def _group_rows(ms: Path, f: int, d: int) -> tuple[np.ndarray, ...]:
     """Row numbers, TIME, ANTENNA1 and ANTENNA2 of the rows of field ``f``, data
     description ``d``."""
-    from msleak.io.ms import iter_rows
-
     parts = list(iter_rows(ms, ["TIME", "ANTENNA1", "ANTENNA2"], field_id=f, ddid=d,
                            chunk_rows=1_000_000))
     rows = np.concatenate([r for r, _ in parts]).astype(np.int64)
@@ -174,10 +197,8 @@ def iter_chunks(k: int, plan, memory_per_task: float, dtype, centre_correction, 
 def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
                 rows_per_time: int, nrows: int, memory_per_task: float, dtype,
                 has_beam: bool) -> tuple[int, int]:
-    """:func:`~msleak.predict.plan.plan_chunks` for a group: the skies, the rows' metadata
+    """:func:`plan_chunks` for a group: the skies, the rows' metadata
     and the kernel's scratch memory are the fixed part."""
-    from msleak.predict.plan import plan_chunks
-
     ndir_skies = sum(comp.skies[j].ndir for j in plan.active)
     fixed = (comp.nbytes + nrows * 28
              + kernels.scratch_bytes(nstation, comp.ndir, ndir_skies, dtype))
@@ -259,8 +280,6 @@ def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,
                             np.append(comp.dec, fmeta.dec), stations=stations, dtype=dtype)
     left = None
     if centre_correction:
-        from msleak.beam.base import invert_2x2
-
         left, singular = invert_2x2(full[..., -1, :, :].astype(np.complex128))
         if singular.any():
             log.warning("beam at the phase centre is singular for %d station/time/channel "

@@ -23,7 +23,11 @@ from typing import Sequence
 import numpy as np
 
 from msleak.errors import InputError
+from msleak.io.fits import cube_from_dataset
+from msleak.io.skymodel import read_sky
 from msleak.predict.kernels import brightness_factors, lmn_minus_one
+from msleak.sky.cube import SkyCube, crop, recentre
+from msleak.sky.sources import PointSources, sources_from_cube
 
 __all__ = ["SkyComponents", "SkySet", "sky_components", "sky_sources", "sky_label", "sky_set",
            "prepare_sources"]
@@ -177,10 +181,6 @@ def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):
     """
     import xarray as xr
 
-    from msleak.io.fits import cube_from_dataset
-    from msleak.io.skymodel import read_sky
-    from msleak.sky.cube import SkyCube, crop, recentre
-    from msleak.sky.sources import PointSources, sources_from_cube
 
     if isinstance(sky, (str, os.PathLike)):
         return read_sky(sky, fov_deg=fov_deg, phase_centre=(np.degrees(ra0), np.degrees(dec0)))

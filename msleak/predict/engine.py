@@ -18,7 +18,6 @@ import logging
 import os
 import sys
 import time as _time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence, Union
 
@@ -26,40 +25,18 @@ import numpy as np
 
 from msleak.errors import InputError, MsleakError
 from msleak.io import columns as colio
+from msleak.io.ms import append_history, check_ms, open_table
 from msleak.io.products import call_record
+from msleak.parallel import open_runner
+from msleak.parallel.runner import WorkerLost, parse_memory
 from msleak.predict import chunks, runstate
 from msleak.predict.plan import make_plan, make_targets
 
-__all__ = ["predict", "PredictResult"]
+__all__ = ["predict"]
 
 log = logging.getLogger(__name__)
 
 PathLike = Union[str, os.PathLike]
-
-
-@dataclass
-class PredictResult:
-    """What a predict run did for one column of one MS."""
-
-    ms: Path
-    column: str | None
-    rows_written: int
-    groups: list = field(default_factory=list)
-    resumed: bool = False
-    created_column: bool = False
-    #: the column was complete from an identical run and left as it was
-    skipped: bool = False
-    seconds: float = 0.0
-    #: directions with flux of this column's sky, per group
-    n_sources: dict = field(default_factory=dict)
-    #: wall time (s) per stage of the run on this MS, all its columns together (the same
-    #: dict for each): setup (inputs, skies, beam model), read, uvw, beam, kernel,
-    #: per_baseline, write
-    timings: dict = field(default_factory=dict)
-    #: number of time slots predicted
-    n_slots: int = 0
-    #: rows predicted from their own UVW (not antenna-based within the tolerance)
-    rows_per_baseline: int = 0
 
 
 def predict(ms: PathLike | Sequence[PathLike], sky, *,
@@ -117,7 +94,6 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     antenna1, antenna2, freq (Hz), corr (names).
     """
     given = dict(locals())
-    from msleak.parallel.runner import parse_memory
 
     t_start = _time.perf_counter()
     single_ms = isinstance(ms, (str, os.PathLike))
@@ -161,8 +137,6 @@ def _check_options(paths: list[Path], in_memory: bool, beam: str, diameter) -> N
 
 def _check_paths(ms_list: list) -> list[Path]:
     """The Measurement Sets of a run, checked to exist and to be given once."""
-    from msleak.io.ms import check_ms
-
     paths = [check_ms(m) for m in ms_list]
     if not paths:
         raise InputError("no Measurement Set given")
@@ -177,8 +151,6 @@ def _check_paths(ms_list: list) -> list[Path]:
 @contextlib.contextmanager
 def _runner(plans: list, scheduler, workers, budget: int):
     """The dask runner of a run; refuses the EveryBeam direct model off this process."""
-    from msleak.parallel import open_runner
-
     with open_runner(scheduler, workers, budget) as runner:
         if runner.kind in ("processes", "distributed"):
             for plan in plans:
@@ -193,8 +165,6 @@ def _runner(plans: list, scheduler, workers, budget: int):
 def _run(plans: list, scheduler, workers, budget: int, *, dtype, centre_correction: bool,
          beam: str, restart: bool, progress: bool, t_start: float) -> None:
     """Create the columns, compute and write every chunk; undo the run if it is refused."""
-    from msleak.parallel.runner import WorkerLost
-
     rollbacks: list[colio.Rollback] = []
     try:
         with _runner(plans, scheduler, workers, budget) as runner:
@@ -268,8 +238,6 @@ def _account(plan, job, timings: dict, n_per_baseline: int) -> None:
 def _predict_in_memory(plan, scheduler, workers, budget: int, *, dtype, centre_correction,
                        beam, progress, t_start) -> list:
     """Every chunk of one MS computed and gathered into one DataArray per sky (read-only)."""
-    from msleak.io.ms import open_table
-
     _check_one_layout(plan)
     plan.active = list(range(len(plan.targets)))
     parts: list = []
@@ -331,8 +299,6 @@ def _data_arrays(plan, parts: list) -> list:
 
 def _append_history(plan, command: str) -> None:
     """One MS HISTORY row saying what the run wrote."""
-    from msleak.io.ms import append_history
-
     skies = "; ".join(f"{t.label} -> {t.column}{' (unchanged)' if r.skipped else ''}"
                       for t, r in zip(plan.targets, plan.results))
     s = plan.settings[0]

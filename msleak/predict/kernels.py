@@ -66,7 +66,6 @@ __all__ = [
 ]
 
 #: Speed of light in vacuum (m/s).
-from msleak.constants import SPEED_OF_LIGHT
 
 #: (RR, RL, LR, LL) = LINEAR_TO_CIRCULAR @ (XX, XY, YX, YY): kron(C, conj(C)) with C the
 #: feed change of basis of :data:`msleak.conventions.LINEAR_TO_CIRCULAR_FEEDS`, which maps

@@ -16,7 +16,6 @@ import pickle
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -24,41 +23,46 @@ from msleak import __version__
 from msleak.conventions import correlation_layout
 from msleak.errors import InputError
 from msleak.io import columns as colio
+from msleak.io.ms import (
+    iter_rows,
+    open_table,
+    read_corr_types,
+    read_data_descriptions,
+    read_fields,
+    read_spectral_windows,
+)
 from msleak.predict.chunks import register_beam
 from msleak.predict.components import SkySet, sky_components, sky_label, sky_set
 
-__all__ = ["plan_chunks", "Target", "Plan", "make_targets",
+__all__ = ["Target", "Plan", "make_targets",
            "make_plan"]
 
 log = logging.getLogger(__name__)
 
-def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time: int,
-                memory_limit: float, itemsize: int, beam: bool,
-                fixed_bytes: float = 0.0, nsky: int = 1) -> tuple[int, int]:
-    """Times and channels per chunk so that the working set stays under ``memory_limit``.
+@dataclass
+class PredictResult:
+    """What a predict run did for one column of one MS."""
 
-    The per-(time, channel) estimate counts the beam Jones matrices towards the ``ndir``
-    directions of all skies (complex128 as the beam models compute them, the cast copy
-    and one temporary of the same size) and, for each of the ``nsky`` skies, its
-    visibility matrices and its gathered and written rows.
+    ms: Path
+    column: str | None
+    rows_written: int
+    groups: list = field(default_factory=list)
+    resumed: bool = False
+    created_column: bool = False
+    #: the column was complete from an identical run and left as it was
+    skipped: bool = False
+    seconds: float = 0.0
+    #: directions with flux of this column's sky, per group
+    n_sources: dict = field(default_factory=dict)
+    #: wall time (s) per stage of the run on this MS, all its columns together (the same
+    #: dict for each): setup (inputs, skies, beam model), read, uvw, beam, kernel,
+    #: per_baseline, write
+    timings: dict = field(default_factory=dict)
+    #: number of time slots predicted
+    n_slots: int = 0
+    #: rows predicted from their own UVW (not antenna-based within the tolerance)
+    rows_per_baseline: int = 0
 
-    Returns
-    -------
-    (ntime_chunk, nchan_chunk) : tuple of int, both >= 1
-    """
-    per_unit = nsky * ((2 * nstation) ** 2 * itemsize + rows_per_time * 4 * (2 * itemsize + 8))
-    if beam:
-        per_unit += nstation * (ndir + 1) * 4 * (2 * 16 + itemsize)
-    avail = memory_limit - fixed_bytes
-    units = int(avail // per_unit) if avail > 0 else 0
-    if units < 1:
-        log.warning("memory limit %.0f MB is too small for one time slot and channel "
-                    "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
-                    (per_unit + fixed_bytes) / 2**20)
-        return 1, 1
-    if units >= nchan:
-        return max(1, min(ntime, units // nchan)), nchan
-    return 1, units
 
 
 @dataclass(frozen=True)
@@ -196,8 +200,6 @@ def select_ids(values, names: list[str], what: str, present: np.ndarray) -> list
 
 def _row_groups(ms: Path) -> dict[tuple[int, int], int]:
     """Number of main-table rows of every (FIELD_ID, DATA_DESC_ID) present."""
-    from msleak.io.ms import iter_rows
-
     counts: dict[tuple[int, int], int] = {}
     for _, cols in iter_rows(ms, ["FIELD_ID", "DATA_DESC_ID"], chunk_rows=1_000_000):
         pairs, n = np.unique(np.stack([cols["FIELD_ID"], cols["DATA_DESC_ID"]], axis=1),
@@ -224,10 +226,6 @@ def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
 def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
               dtype, field_sel, spw_sel, diameter) -> Plan:
     """Read the metadata of ``ms``, select its groups and prepare the skies (no writes)."""
-    from msleak.io.ms import (read_corr_types, read_data_descriptions, read_fields,
-                              read_spectral_windows)
-    from msleak.predict.engine import PredictResult
-
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
     _check_new_columns(ms, [t.column for t in targets if t.column is not None])
@@ -279,8 +277,6 @@ def _sky_key(target: Target) -> tuple:
 def _check_new_columns(ms: Path, columns: list[str]) -> None:
     """Refuse target columns of the wrong kind, and new columns that fit on the disk one by
     one but not together."""
-    from msleak.io.ms import open_table
-
     with open_table(ms) as table:
         new = [c for c in columns if not colio.check_data_column(table, c)]
         if len(new) < 2:
@@ -293,8 +289,6 @@ def _check_new_columns(ms: Path, columns: list[str]) -> None:
 
 def _check_rows(ms: Path, groups: list) -> None:
     """Refuse rows predict cannot compute (TIME or UVW not finite), before any write."""
-    from msleak.io.ms import iter_rows
-
     for f, d in groups:
         for rows, cols in iter_rows(ms, ["TIME", "UVW"], field_id=f, ddid=d,
                                     chunk_rows=1_000_000):

@@ -14,7 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak.beam import BeamUnavailable, load_beam
+from msleak.beam.maps import sin_grid
 from msleak.errors import InputError
+from msleak.io import ms as msio
+from msleak.ps.gridding import gridder_response
 
 __all__ = ["beam_area_from_power", "ms_beam_area", "BEAM_AREA_MODELS"]
 
@@ -51,11 +55,6 @@ def ms_beam_area(ms: str | Path, *, model: str, gridder: str, cell: float,
     InputError
         Also when the model cannot describe the MS; the message then names grid's options.
     """
-    from msleak.beam import BeamUnavailable, load_beam
-    from msleak.beam.maps import sin_grid
-    from msleak.io import ms as msio
-    from msleak.ps.gridding import gridder_response
-
     if model not in ("everybeam", "dipole"):
         raise InputError(f"beam-area model {model!r} is not one read from the MS")
     field = msio.read_fields(ms)[field_id]

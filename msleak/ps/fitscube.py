@@ -19,8 +19,9 @@ import numpy as np
 import xarray as xr
 
 from msleak.errors import InputError
+from msleak.io.fits import check_complete
+from msleak.ps.grid_tasks import uvcube_dataset
 from msleak.ps.image import beam_solid_angle, crop_centre, image_to_uv, to_jy_per_pixel
-from msleak.ps.grid import uvcube_dataset
 
 __all__ = ["read_image_cube", "image_paths", "read_images", "grid_image"]
 
@@ -46,8 +47,6 @@ def read_image_cube(path: str | os.PathLike, stokes: str | None = None) -> dict:
         raise InputError(f"{path}: no such image cube")
     try:
         with fits.open(path) as hdul:
-            from msleak.io.fits import check_complete
-
             for h in hdul:
                 check_complete(path, h)
             hdu = next((h for h in hdul if h.data is not None and h.data.ndim >= 3), None)

@@ -19,61 +19,24 @@ import numpy as np
 import xarray as xr
 
 from msleak.constants import SPEED_OF_LIGHT
-from msleak.conventions import STOKES, STOKES_CONVENTION
-from msleak.errors import InputError
+from msleak.conventions import STOKES
+from msleak.errors import InputError, MsleakError
+from msleak.io import ms as msio
+from msleak.io.columns import read_run_state
+from msleak.io.ms import open_table, read_history
 from msleak.io.products import call_record, open_product, refuse_existing, save_product, stamp
-from msleak.ps.beam_area import BEAM_AREA_MODELS
+from msleak.parallel import frequency_layout
+from msleak.ps.beam_area import BEAM_AREA_MODELS, ms_beam_area
+from msleak.ps.fitscube import grid_image
+from msleak.ps.grid_tasks import Input, Spec, check_input, run_tasks, uvcube_dataset
 from msleak.ps.gridding import GRIDDER_DESCRIPTIONS, Gridder, make_grid, response_attrs
-from msleak.ps.grid_tasks import Input, Spec, check_input, run_tasks
 
-__all__ = ["grid", "uvcube_dataset", "Split"]
+__all__ = ["grid", "Split"]
 
 log = logging.getLogger(__name__)
 
 Split = Literal["even-odd", "first-second"]
 PathLike = str | os.PathLike
-
-
-def uvcube_dataset(vis4: np.ndarray, weight: np.ndarray, freq: np.ndarray,
-                   centres: np.ndarray, attrs: dict,
-                   halves: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> xr.Dataset:
-    """Assemble a uvcube Dataset from I, Q, U, V grids; P = Q + iU is added.
-
-    Parameters
-    ----------
-    vis4 : (4, chan, v, u) complex
-        Gridded I, Q, U, V (Jy).
-    weight : (chan, v, u) float
-    freq : (chan,) Hz
-    centres : (n,) cell centres, wavelengths (same for u and v)
-    attrs : dict
-        Attributes of the product.
-    halves : up to two ``(vis4, weight)`` pairs stored as ``vis_a``/``vis_b`` and
-        ``weight_a``/``weight_b``.
-    """
-    def five(v4):
-        return np.concatenate([v4, (v4[1] + 1j * v4[2])[None]], axis=0)
-
-    units = attrs.get("units", "Jy")
-    dims = ("stokes", "freq", "v", "u")
-    wattrs = {"units": "1", "long_name": "sum of the visibility weights"}
-    data = {"vis": (dims, five(vis4), {"units": units,
-                                       "long_name": "gridded Stokes visibility"}),
-            "weight": (dims[1:], weight, wattrs)}
-    for name, (hv, hw) in zip("ab", halves):
-        data[f"vis_{name}"] = (dims, five(hv), {"units": units,
-                                                "long_name": f"gridded Stokes visibility, "
-                                                             f"time half {name}"})
-        data[f"weight_{name}"] = (dims[1:], hw, wattrs)
-    ds = xr.Dataset(data, coords={
-        "stokes": ("stokes", list(STOKES), {"long_name": "Stokes parameter (P = Q + iU)"}),
-        "freq": ("freq", np.asarray(freq, float), {"units": "Hz", "long_name": "frequency"}),
-        "v": ("v", centres, {"units": "1", "long_name": "v of the cell centre, wavelengths"}),
-        "u": ("u", centres, {"units": "1", "long_name": "u of the cell centre, wavelengths"}),
-    })
-    ds.attrs.update({"stokes_convention": STOKES_CONVENTION, "units": "Jy"})
-    ds.attrs.update(attrs)
-    return ds
 
 
 def grid(ms: PathLike | Sequence[PathLike] | None = None, *,
@@ -152,8 +115,6 @@ def grid(ms: PathLike | Sequence[PathLike] | None = None, *,
         raise InputError(f"unknown --beam-area-model {beam_area_model!r}: use "
                          f"{', '.join(BEAM_AREA_MODELS)}")
     if image is not None:
-        from msleak.ps.fitscube import grid_image
-
         cubes = [grid_image(image, stokes=stokes, fov_deg=fov, uv_range=uv,
                             beam_fwhm_deg=beam_fwhm, beam_area_sr=beam_area)]
     else:
@@ -223,9 +184,6 @@ class _Plan:
 def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple,
           gridder: str, split, epsilon: float, threads: int, chunk_rows) -> _Plan:
     """Check every MS and column (before anything is gridded) and size the uv grid."""
-    from msleak.io import ms as msio
-    from msleak.parallel import frequency_layout
-
     if not paths:
         raise InputError("no Measurement Set given")
     if gridder not in GRIDDER_DESCRIPTIONS:
@@ -382,8 +340,6 @@ def _cube_attrs(plan: _Plan, missing: list[str], n_gridded: int, beam_area,
 
 def _ms_history(inputs: list) -> list[str]:
     """The HISTORY rows of every input MS, one line each, prefixed with the MS."""
-    from msleak.io.ms import read_history
-
     return [f"{Path(i.ms).resolve()} HISTORY {line}" for i in inputs
             for line in read_history(i.ms)]
 
@@ -391,9 +347,6 @@ def _ms_history(inputs: list) -> list[str]:
 def _column_provenance(inputs: list, column: str) -> list[str]:
     """The provenance msleak predict stored in ``column`` of each input (keyword
     MSLEAK_PREDICT, docs/predict.md), one line per MS."""
-    from msleak.io.columns import read_run_state
-    from msleak.io.ms import open_table
-
     lines = []
     for inp in inputs:
         with open_table(inp.ms) as t:
@@ -413,9 +366,6 @@ def _beam_area_from_ms(inp: Input, given, model: str, spec: Spec, freq_hz: float
     """Omega from the MS's beam model, unless it was given or the Airy model is asked."""
     if given or model == "airy":
         return {}
-    from msleak.errors import MsleakError
-    from msleak.io import ms as msio
-    from msleak.ps.beam_area import ms_beam_area
 
     tries = ["everybeam", "dipole"] if model == "auto" else [model]
     for name in tries:

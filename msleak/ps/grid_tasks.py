@@ -14,14 +14,25 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import xarray as xr
 
 from msleak.constants import SPEED_OF_LIGHT
-from msleak.conventions import (CorrelationLayout, correlation_layout,
-                                correlations_to_stokes)
+from msleak.conventions import (
+    STOKES,
+    STOKES_CONVENTION,
+    CorrelationLayout,
+    correlation_layout,
+    correlations_to_stokes,
+)
 from msleak.errors import InputError
+from msleak.io import ms as msio
+from msleak.io.columns import read_run_state
+from msleak.io.ms import iter_rows, open_table
+from msleak.parallel import CASACORE_LOCK, open_runner
 from msleak.ps.gridding import make_accumulator, stokes_weights
 
-__all__ = ["AUTO_CHUNK_SAMPLES", "Input", "Spec", "check_input", "run_tasks", "rows_for_memory"]
+__all__ = ["AUTO_CHUNK_SAMPLES", "Input", "Spec", "check_input", "run_tasks", "rows_for_memory",
+           "uvcube_dataset"]
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +91,6 @@ class Job:
 
 def check_input(ms, data_columns: Sequence[str], field, spw) -> Input:
     """Check one MS for gridding (columns, field, spectral window, channels, baselines)."""
-    from msleak.io import ms as msio
-
     ms = msio.check_ms(ms)
     columns = msio.column_names(ms)
     for column in data_columns:
@@ -118,8 +127,6 @@ def _spw_id(spw) -> int:
 
 
 def _weight_column(ms, columns: list[str]) -> str:
-    from msleak.io.ms import open_table
-
     if "WEIGHT_SPECTRUM" in columns:
         with open_table(ms) as t:
             if t.nrows() and t.iscelldefined("WEIGHT_SPECTRUM", 0):
@@ -131,9 +138,6 @@ def _weight_column(ms, columns: list[str]) -> str:
 
 def _check_complete(ms, column: str) -> None:
     """Refuse a column that an interrupted ``msleak predict`` left half written."""
-    from msleak.io.columns import read_run_state
-    from msleak.io.ms import open_table
-
     with open_table(ms) as t:
         state = read_run_state(t, column)
     if state is not None and not bool(state.get("complete", True)):
@@ -144,8 +148,6 @@ def _check_complete(ms, column: str) -> None:
 
 def _baseline_span(ms, rows: np.ndarray, field_id: int, spw_id: int) -> tuple[float, float]:
     """Shortest and longest cross-correlation baseline sqrt(u^2 + v^2) (m) of ``rows``."""
-    from msleak.io import ms as msio
-
     lo, hi = np.inf, 0.0
     if rows.size:
         for _, c in msio.iter_rows(ms, ["UVW", "ANTENNA1", "ANTENNA2"], rows=rows,
@@ -162,9 +164,6 @@ def _baseline_span(ms, rows: np.ndarray, field_id: int, spw_id: int) -> tuple[fl
 
 def _read_chunk(inp: Input, rows: np.ndarray) -> dict:
     """The gridding columns at ascending main-table ``rows`` (own read-only table)."""
-    from msleak.io.ms import iter_rows
-    from msleak.parallel import CASACORE_LOCK
-
     with CASACORE_LOCK:
         ((_, columns),) = list(iter_rows(inp.ms, inp.cols, rows=rows, chunk_rows=rows.size))
     return columns
@@ -300,8 +299,6 @@ def run_tasks(inputs: list, spec: Spec, chunk_rows: int | None, scheduler, worke
                memory_limit: float | None, progress: bool) -> tuple[list, dict, str]:
     """Grid every input's row chunks: per input its summed accumulators (None: no rows),
     the counts, and the scheduler used."""
-    from msleak.parallel import open_runner
-
     totals: list = [None] * len(inputs)
     stats = dict(rows=0, samples=0, unflagged=0, in_range=0)
     with open_runner(scheduler, workers, memory_limit or 2 * 1024**3) as runner:
@@ -339,3 +336,44 @@ def run_tasks(inputs: list, spec: Spec, chunk_rows: int | None, scheduler, worke
                 bar.close()
         return totals, stats, runner.describe()
 
+
+def uvcube_dataset(vis4: np.ndarray, weight: np.ndarray, freq: np.ndarray,
+                   centres: np.ndarray, attrs: dict,
+                   halves: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> xr.Dataset:
+    """Assemble a uvcube Dataset from I, Q, U, V grids; P = Q + iU is added.
+
+    Parameters
+    ----------
+    vis4 : (4, chan, v, u) complex
+        Gridded I, Q, U, V (Jy).
+    weight : (chan, v, u) float
+    freq : (chan,) Hz
+    centres : (n,) cell centres, wavelengths (same for u and v)
+    attrs : dict
+        Attributes of the product.
+    halves : up to two ``(vis4, weight)`` pairs stored as ``vis_a``/``vis_b`` and
+        ``weight_a``/``weight_b``.
+    """
+    def five(v4):
+        return np.concatenate([v4, (v4[1] + 1j * v4[2])[None]], axis=0)
+
+    units = attrs.get("units", "Jy")
+    dims = ("stokes", "freq", "v", "u")
+    wattrs = {"units": "1", "long_name": "sum of the visibility weights"}
+    data = {"vis": (dims, five(vis4), {"units": units,
+                                       "long_name": "gridded Stokes visibility"}),
+            "weight": (dims[1:], weight, wattrs)}
+    for name, (hv, hw) in zip("ab", halves):
+        data[f"vis_{name}"] = (dims, five(hv), {"units": units,
+                                                "long_name": f"gridded Stokes visibility, "
+                                                             f"time half {name}"})
+        data[f"weight_{name}"] = (dims[1:], hw, wattrs)
+    ds = xr.Dataset(data, coords={
+        "stokes": ("stokes", list(STOKES), {"long_name": "Stokes parameter (P = Q + iU)"}),
+        "freq": ("freq", np.asarray(freq, float), {"units": "Hz", "long_name": "frequency"}),
+        "v": ("v", centres, {"units": "1", "long_name": "v of the cell centre, wavelengths"}),
+        "u": ("u", centres, {"units": "1", "long_name": "u of the cell centre, wavelengths"}),
+    })
+    ds.attrs.update({"stokes_convention": STOKES_CONVENTION, "units": "Jy"})
+    ds.attrs.update(attrs)
+    return ds

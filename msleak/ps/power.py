@@ -18,6 +18,8 @@ import xarray as xr
 
 from msleak.errors import InputError
 from msleak.io.products import call_record, history_lines, refuse_existing, save_product, stamp
+from msleak.plot import figure_formats
+from msleak.plot.ps import plot_ps2d
 from msleak.ps import binning
 from msleak.ps.cosmology import Cosmo, cosmo_at, describe, jy2_to_mk2_mpc3, make_cosmology
 from msleak.ps.transform import load_input
@@ -132,8 +134,6 @@ def power_spectrum(delay: str | os.PathLike | xr.Dataset, *,
     if output is not None:
         save_product(ds, output, "ps", overwrite=overwrite)
     if plot is not None:
-        from msleak.plot.ps import plot_ps2d
-
         plot_ps2d(ds, plot, stokes=panels)
     return ds
 
@@ -142,7 +142,6 @@ def _check_figure(plot, overwrite: bool) -> None:
     if plot is None:
         return
     refuse_existing(plot, overwrite)
-    from msleak.plot import figure_formats
 
     suffix = Path(plot).suffix.lower().lstrip(".")
     if suffix not in figure_formats():

@@ -8,20 +8,28 @@ and outputs of this stage and of :mod:`msleak.ps.power`.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Iterable, Literal
 
 import numpy as np
 import xarray as xr
 
 from msleak.errors import InputError
-from msleak.io.products import (call_record, history_lines, open_product, refuse_existing,
-                                 save_product, stamp)
+from msleak.io.products import (
+    call_record,
+    history_lines,
+    open_product,
+    refuse_existing,
+    save_product,
+    stamp,
+)
 from msleak.ps.delay import FFT_CONVENTION, delay_axis, delay_transform, spectral_window
 
 __all__ = ["transform", "delay_dataset", "load_input", "refuse_existing", "provenance"]
 
 #: what transform and ps need of a uvcube: variables (coordinates included), attributes
+#: cells empty in some unflagged channels: dropped, or those channels filled with zeros
+Partial = Literal["drop", "zero"]
+
 UVCUBE_VARIABLES = ("vis", "weight", "stokes", "freq", "v", "u")
 UVCUBE_ATTRS = ("cell_lambda", "uv_min_lambda", "uv_max_lambda")
 
@@ -49,7 +57,7 @@ def load_input(item, kind: str, variables: Iterable[str], attrs: Iterable[str],
 
 
 def transform(grid: str | os.PathLike | xr.Dataset, *, window: str = "blackman-harris",
-              partial: Literal["drop", "zero"] = "drop",
+              partial: Partial = "drop",
               output: str | os.PathLike | None = None, overwrite: bool = False) -> xr.Dataset:
     """Delay-transform every uv cell of a uv cube (``msleak transform``).
 
@@ -86,7 +94,7 @@ def transform(grid: str | os.PathLike | xr.Dataset, *, window: str = "blackman-h
 
 
 def delay_dataset(uv: xr.Dataset, window: str = "blackman-harris",
-                  partial: Literal["drop", "zero"] = "drop") -> xr.Dataset:
+                  partial: Partial = "drop") -> xr.Dataset:
     """The delay Dataset of a checked uvcube Dataset (see :func:`transform`)."""
     freq = uv["freq"].values
     nchan = freq.size

@@ -9,7 +9,7 @@ import inspect
 import math
 import os
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import Sequence
 
 import numpy as np
 import xarray as xr
@@ -18,7 +18,8 @@ from msleak.errors import InputError
 from msleak.io.fits import cube_from_dataset, dataset_from_cube, is_fits, read_cube, write_cube
 from msleak.io.products import call_record
 from msleak.io.skymodel import read_sky, write_skymodel
-from msleak.sky.cube import SkyCube, convert_units, crop as crop_cube, recentre
+from msleak.sky.cube import SkyCube, Units, convert_units, recentre
+from msleak.sky.cube import crop as crop_cube
 from msleak.sky.foreground import ForegroundParams, generate_foreground_cube
 from msleak.sky.sources import PointSources, sources_from_cube
 
@@ -35,7 +36,7 @@ def make_sky(output: str | os.PathLike | None = None, *, fov: float | None = Non
              npix: int = 50, freq_min: float = 150e6, nchan: int = 50,
              chan_width: float = 195312.5, seed: int | None = None,
              phase_centre: tuple[float, float] | None = None,
-             units: Literal["K", "Jy/pixel"] | None = None, depth_pc: float = 1000.0,
+             units: Units | None = None, depth_pc: float = 1000.0,
              ncells_los: int = 100, cell_perp_pc: float | None = None,
              b_regular: Sequence[float] = (1.0, 1.0, 0.2), b_random_rms: float = 2.5,
              b_index: float = 11 / 3, solenoidal: bool = True, ne_mean: float = 0.01,

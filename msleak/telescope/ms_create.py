@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak import __version__
 from msleak.telescope.layouts import Layout
 
 __all__ = ["create_ms_tables", "write_lofar_tables"]
@@ -197,7 +198,6 @@ def _write_field(path: Path, ra: float, dec: float, name: str, t0: float, lofar:
 
 def _write_observation(path: Path, telescope: str, time_range) -> None:
     pt = _pt()
-    from msleak import __version__
 
     with _open(path, "OBSERVATION") as t:
         t.addrows(1)

@@ -18,12 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from msleak.errors import InputError
+from msleak.io.columns import check_free_space
+from msleak.io.ms import append_history
 from msleak.io.phased_array import write_phased_array
 from msleak.io.products import call_record
 from msleak.telescope.layouts import Layout, lofar_hba_core, read_layout_file
-from msleak.telescope.ska_low import (ska_low_from_layout_file, ska_low_layout,
-                                      station_element_offsets)
 from msleak.telescope.ms_create import create_ms_tables
+from msleak.telescope.ska_low import (
+    ska_low_from_layout_file,
+    ska_low_layout,
+    station_element_offsets,
+)
 from msleak.telescope.uvw import antenna_uvw
 
 __all__ = ["FIELD_PRESETS", "FieldPreset", "TELESCOPES", "simulate", "transit_start"]
@@ -67,8 +72,8 @@ _DEFAULT_DATE = "2013-01-01"
 def transit_start(ra_deg: float, date: str, duration_h: float, longitude_rad: float) -> float:
     """Start time (MJD s) of an observation of ``duration_h`` centred on the transit of
     right ascension ``ra_deg`` at ``longitude_rad`` on the UTC day ``date``."""
-    from astropy.time import Time
     import astropy.units as u
+    from astropy.time import Time
 
     t0 = Time(f"{date}T00:00:00", scale="utc")
     lst0 = t0.sidereal_time("apparent", longitude=longitude_rad * u.rad).to_value(u.hourangle)
@@ -152,8 +157,6 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
     nrows = ntime * len(a1)
     log.info("creating %s: %d antennas, %d baselines, %d times x %.0f s, %d channels (%d rows)",
              path, len(lay), len(a1), ntime, interval, nchan, nrows)
-    from msleak.io.columns import check_free_space
-    from msleak.io.ms import append_history
 
     # DATA (complex64), WEIGHT_SPECTRUM (float32), FLAG (bits), ~200 B of other columns a
     # row, plus tiles and subtables: casacore aborts the process on a full disk.
@@ -202,8 +205,8 @@ def _layout(telescope: str, layout, stations) -> Layout:
 
 def _check_rises(lay: Layout, dec_deg: float, name: str) -> None:
     """Refuse a field that never rises above the array's horizon."""
-    from astropy.coordinates import EarthLocation
     import astropy.units as u
+    from astropy.coordinates import EarthLocation
 
     lat = EarthLocation.from_geocentric(*lay.positions.mean(axis=0), unit=u.m).lat.deg
     if 90.0 - abs(lat - dec_deg) <= 0.0:
@@ -270,8 +273,8 @@ def _start_time(start, preset, phase_centre, lay: Layout, ra_deg: float,
         return _parse_start(start)
     if preset is not None and not preset.centre_on_transit and phase_centre is None:
         return _parse_start(_NCP_START)
-    from astropy.coordinates import EarthLocation
     import astropy.units as u
+    from astropy.coordinates import EarthLocation
 
     lon = EarthLocation.from_geocentric(*lay.positions.mean(axis=0), unit=u.m).lon
     date = preset.date if preset is not None else _DEFAULT_DATE

@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak.beam.coords import enu_basis
 from msleak.errors import InputError
+from msleak.telescope.layouts import Layout, enu_to_itrf, read_layout_file
 
 __all__ = ["SKA_LOW_CENTRE", "SKA_LOW_TELESCOPE_NAME", "STATION_DIAMETER_M",
            "ELEMENTS_PER_STATION", "MIN_ELEMENT_SPACING_M", "MIN_STATION_SEPARATION_M",
@@ -80,8 +82,6 @@ class SkaLowLayout:
 
     def to_layout(self):
         """As a :class:`msleak.telescope.layouts.Layout` (TELESCOPE_NAME ``SKA-LOW``)."""
-        from msleak.telescope.layouts import Layout
-
         return Layout(names=list(self.names), positions=self.positions.copy(),
                       diameters=np.full(len(self.names), STATION_DIAMETER_M),
                       telescope=SKA_LOW_TELESCOPE_NAME)
@@ -183,8 +183,6 @@ def ska_low_layout(n_stations: int = 224, seed: int = 0, core_diameter: float = 
     SkaLowLayout
         Stations ``S000``, ``S001``, ... around :data:`SKA_LOW_CENTRE`.
     """
-    from msleak.telescope.layouts import enu_to_itrf
-
     if n_stations < 2:
         raise InputError("an SKA-Low layout needs at least two stations")
     pts = _perturbed_sunflower(int(n_stations), core_diameter / 2, min_separation, jitter,
@@ -197,8 +195,6 @@ def ska_low_layout(n_stations: int = 224, seed: int = 0, core_diameter: float = 
 
 def station_axes(positions_itrf) -> np.ndarray:
     """Per station the East, North, Up unit vectors (rows) in ITRF (WGS84), (n, 3, 3)."""
-    from msleak.beam.coords import enu_basis
-
     positions = np.atleast_2d(np.asarray(positions_itrf, dtype=float))
     return np.array([enu_basis(p) for p in positions])
 
@@ -233,8 +229,6 @@ def ska_low_from_layout_file(path: str | Path, pattern: str | None = None):
     layout-file default (30.75 m);
     an ENU file must state its ``reference =`` position (the default is LOFAR's).
     """
-    from msleak.telescope.layouts import Layout, read_layout_file
-
     lay = read_layout_file(path, pattern)
     far = np.linalg.norm(lay.positions - ska_low_centre_itrf(), axis=1).max()
     if far > 200e3:
