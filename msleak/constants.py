@@ -24,6 +24,10 @@ FREQ_21CM: float = 1420405751.768
 
 def jy_per_kelvin(freq_hz, solid_angle_sr: float) -> np.ndarray:
     """Rayleigh-Jeans flux density [Jy] of a 1 K brightness temperature over
-    ``solid_angle_sr`` at ``freq_hz`` (``u.brightness_temperature``'s relation)."""
-    freq = np.asarray(freq_hz, dtype=float)
-    return 2.0 * BOLTZMANN * freq**2 / SPEED_OF_LIGHT**2 * solid_angle_sr / JANSKY
+    ``solid_angle_sr`` at ``freq_hz``: astropy's ``u.brightness_temperature``,
+    S = 2 k_B T nu^2 / c^2 Omega."""
+    freq = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    kelvin = np.ones_like(freq) * _u.K
+    jy = kelvin.to_value(_u.Jy, equivalencies=_u.brightness_temperature(
+        freq * _u.Hz, beam_area=solid_angle_sr * _u.sr))
+    return jy if np.ndim(freq_hz) else jy[0]

@@ -211,3 +211,14 @@ def test_leakage_statistics_permutation_invariant(seed, n, scale, bins):
     assert a.fit.median_w == pytest.approx(b.fit.median_w, rel=1e-6, abs=1e-15)
     if a.fit_hist is not None and b.fit_hist is not None:
         assert a.fit_hist.median_w == pytest.approx(b.fit_hist.median_w, rel=1e-4, abs=1e-15)
+
+
+def test_jy_per_kelvin_is_the_rayleigh_jeans_law():
+    """S = 2 k_B T nu^2 / c^2 Omega, written here from the exact SI constants."""
+    from msleak.constants import jy_per_kelvin
+
+    freq = np.linspace(100e6, 200e6, 7)
+    omega = 3.3e-5
+    expected = 2 * 1.380649e-23 * freq ** 2 / 299_792_458.0 ** 2 * omega / 1e-26
+    np.testing.assert_allclose(jy_per_kelvin(freq, omega), expected, rtol=1e-14)
+    assert np.ndim(jy_per_kelvin(150e6, omega)) == 0

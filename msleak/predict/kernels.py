@@ -51,6 +51,7 @@ from numba import types
 
 from msleak.conventions import LINEAR_TO_CIRCULAR_FEEDS
 from msleak.predict._blas import HERK_SYMBOLS, register_herk, single_threaded_blas
+from msleak.sky.sources import lmn
 
 __all__ = [
     "lmn_minus_one",
@@ -95,12 +96,7 @@ def lmn_minus_one(ra: np.ndarray, dec: np.ndarray, ra0: float, dec0: float) -> n
         l (towards East), m (towards North), n - 1 (computed without cancellation). Rows
         of directions more than 90 deg from the phase centre have n - 1 < -1.
     """
-    ra = np.asarray(ra, dtype=np.float64)
-    dec = np.asarray(dec, dtype=np.float64)
-    dra = ra - ra0
-    l = np.cos(dec) * np.sin(dra)
-    m = np.sin(dec) * np.cos(dec0) - np.cos(dec) * np.sin(dec0) * np.cos(dra)
-    n = np.sin(dec) * np.sin(dec0) + np.cos(dec) * np.cos(dec0) * np.cos(dra)
+    l, m, n = lmn(ra, dec, ra0, dec0)
     r2 = l * l + m * m
     nm1 = np.where(n > 0, -r2 / (1.0 + np.sqrt(np.clip(1.0 - r2, 0.0, None))), n - 1.0)
     return np.stack([l, m, nm1], axis=-1)
