@@ -1,23 +1,13 @@
 """Primary beams: Jones matrices per station, time, channel and direction, and Mueller maps.
 
-Models (:func:`load_beam`):
+:func:`load_beam` loads a model for a Measurement Set: ``everybeam`` (LOFAR HBA through
+msleak's fast evaluator, other telescopes through EveryBeam), ``everybeam-direct``
+(EveryBeam's own calls), ``dipole`` (analytic, any MS) or ``none`` (identity). All
+return ``J[station, time, channel, direction, 2, 2]`` (rows: feeds X, Y; columns: sky
+North, East), zero below the horizon; ``centre_correction=True`` gives ``J(s0)^-1 J(s)``.
+Mueller matrices and maps come from :mod:`msleak.beam.mueller` and the map functions.
 
-``everybeam``
-    The LOFAR HBA station beam of EveryBeam (Hamaker element x tile x station array
-    factors) from the MS's LOFAR subtables, evaluated by msleak's vectorised evaluator
-    (:mod:`msleak.beam.lofar_fast`, equal to EveryBeam to ~1e-7).  Other telescopes
-    EveryBeam's Python bindings load from an MS (OSKAR, MWA, ...) and LOFAR LBA fall back
-    to ``everybeam-direct``.
-``everybeam-direct``
-    EveryBeam's own ``station_response``, one call per direction (slow, the reference).
-``dipole``
-    Analytic crossed dipoles times a scalar station factor, for any MS
-    (:mod:`msleak.beam.dipole`).
-``none``
-    The identity.
-
-All return ``J[station, time, channel, direction, 2, 2]`` in the sky (North, East) basis
-(rows: feeds), zero below the horizon; ``centre_correction=True`` gives ``J(s0)^-1 J(s)``.
+Models, conventions and accuracy: docs/beam.md.
 """
 
 from __future__ import annotations

@@ -1,28 +1,13 @@
 """Sky directions for beam evaluation: J2000 -> ITRF, the sky (North, East) basis, the NCP.
 
-EveryBeam converts each J2000 direction to an ITRF unit vector with casacore measures in a
-frame fixed at LOFAR's CS002LBA position and the evaluation time (UTC), and builds the sky
-polarization basis of a direction ``d`` from the J2000 north pole converted the same way::
-
-    east = normalize(ncp x d)        north = d x east
-
-msleak does the same, with two differences that keep it fast and finite:
-
-* **vectorised conversion.**  A casacore conversion through python-casacore costs about
-  200 us, too slow for thousands of directions per time slot.  J2000 -> ITRF is a rotation
-  (precession, nutation, Earth rotation) of the aberrated direction, and aberration to
-  first order in v/c is ``normalize(a + beta)``; the whole map is therefore
-  ``normalize(M a + b)`` with a 3x3 matrix ``M`` and a vector ``b`` up to terms of order
-  ``beta^2 ~ 1e-8`` and the Sun's gravitational deflection.  msleak converts a small grid of
-  anchor directions spanning the requested ones exactly with casacore, solves the linear
-  system ``y_i x (M a_i + b) = 0`` for ``(M, b)`` and applies the map to every direction.
-  Over a 25 deg region the fitted map agrees with casacore to a few 1e-9 rad (tested).
-* **the pole.**  Exactly at a celestial pole ``ncp x d = 0`` and the basis is undefined
-  (EveryBeam returns NaN).  msleak moves any direction closer than :data:`POLE_EPS_RAD`
-  to a pole onto the meridian of its own right ascension at that distance, i.e. it takes
-  the limit of the basis along that meridian.  A pixel at Dec = 90 deg with RA ``a`` thus
-  gets the basis of the direction ``(a, 90 deg - 2 mas)``: finite, continuous with its
-  neighbours on that meridian, and the same in the fast and the EveryBeam-direct paths.
+:func:`itrf_map` converts many J2000 unit vectors of one time to ITRF through a map
+fitted to a few exact casacore conversions (:func:`exact_j2000_to_itrf`);
+:func:`sky_basis` gives EveryBeam's basis ``east = normalize(ncp x d)``,
+``north = d x east``; :func:`clip_pole` moves directions within :data:`POLE_EPS_RAD` of
+a celestial pole onto their own meridian so the basis stays finite;
+:func:`transport_angle` and :func:`basis_rotation` refer Q and U to one frame per map.
+Angles in radians, vectors as (..., 3) arrays. Details: docs/beam.md ("Conventions",
+"Directions in ITRF").
 """
 
 from __future__ import annotations

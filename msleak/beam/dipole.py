@@ -1,30 +1,12 @@
 """An analytic beam for any Measurement Set: crossed dipoles times a scalar station factor.
 
-Formulas (all vectors in ITRF; ``d`` the direction, ``n``, ``e`` its sky North and East
-unit vectors as in :func:`msleak.beam.coords.sky_basis`; ``N``, ``E``, ``U`` the station's
-local geodetic north, east and up; ``alpha`` the feed angle from north through east)::
+:class:`DipoleBeam` (``load_beam("dipole", ms, ...)``) gives, per station, the projection
+of ideal X and Y dipoles (X along local North for feed angle 0) on the sky (North, East)
+basis (:func:`dipole_jones`), optionally times a ground-plane factor, times a scalar
+station factor (:func:`station_factor`: ``airy``, ``gaussian`` or ``none``, from the
+station diameter). Directions below the station's horizon get a zero matrix.
 
-    feed X:  x = cos(alpha) N + sin(alpha) E          feed Y:  y = -sin(alpha) N + cos(alpha) E
-
-    J = g(d, f) A(theta, f) [[x.n, x.e],
-                             [y.n, y.e]]
-
-The matrix is the projection of each ideal short dipole on the sky plane: the voltage of a
-dipole along ``x`` from a field ``E_n n + E_e e`` is ``x.(E_n n + E_e e)``.  At the zenith
-with ``alpha = 0`` it is the identity (X along North, Y along East, the IAU convention).
-
-* ground plane (``ground_plane_height_m = h``): ``g = 2 sin(2 pi f h cos(z) / c)`` with
-  ``cos z = d.U``, the sum of the direct wave and its image in a perfectly conducting plane
-  (reflection -1) at depth ``h``; without a ground plane ``g = 1``;
-* station factor, ``theta`` the angle between ``d`` and the pointing (the MS DELAY_DIR,
-  else PHASE_DIR), ``D`` the station diameter:
-
-  - ``airy``: ``A = 2 J1(u) / u``, ``u = pi D f sin(theta) / c`` (uniformly illuminated disc);
-  - ``gaussian``: ``A = exp(-2 ln 2 theta^2 / theta_F^2)`` with power FWHM
-    ``theta_F = 1.02 c / (f D)`` (so ``A^2`` is half at ``theta = theta_F / 2``);
-  - ``none``: ``A = 1``.
-
-Directions below the station's horizon (``d.U < 0``) get a zero matrix.
+Formulas: docs/beam.md ("The dipole model").
 """
 
 from __future__ import annotations

@@ -1,27 +1,14 @@
 """numba kernels of the fast LOFAR HBA station beam (pure functions on arrays).
 
-The station response EveryBeam computes for a LOFAR HBA station (``Station::Response`` with
-a top-level ``BeamFormer`` over the station's antenna fields, each a
-``BeamFormerLofarHBA``) is, for a direction ``d``, frequency ``f``, station beam-former
-direction ``s0`` and tile beam-former direction ``t0`` (ITRF unit vectors)::
+:func:`station_jones_kernel` gives the station Jones matrices of one time slot: per
+antenna field the field phase reference, the field (tile) array factor and the tile
+(element) array factor times the element Jones matrices that
+:mod:`msleak.beam.lofar_fast` computes, for ITRF unit directions and channel frequencies
+(Hz), with phases advanced channel to channel over a uniform band.
+:func:`apply_left_inverse` applies ``J(s0)^-1`` in place; :func:`sincos` is a
+branch-free polynomial sine/cosine that vectorises.
 
-    J(d, f) = sum_F  w_F AF_F AT_F E_F(d, f)
-
-    w_F  = exp(-2 pi i f (s0 - d).(o_F - r) / c) / N_fields          field phase reference
-    AF_F = sum_tiles a_t exp(-2 pi i f (s0 - d).x_t / c) / sum a_t    field array factor
-    AT_F = sum_16    exp(-2 pi i f (t0 - d).e_k / c) / 16             tile array factor
-    E_F  = Hamaker element Jones in the field frame, rotated to the sky (North, East)
-
-with ``o_F`` the field centre, ``r`` the station's LOFAR_PHASE_REFERENCE, ``x_t`` the tile
-offsets (ELEMENT_OFFSET), ``a_t`` 1 for unflagged tiles, ``e_k`` the tile's element
-offsets (TILE_ELEMENT_OFFSET).  (EveryBeam's ``freq0`` is the channel frequency, its
-default ``use_channel_frequency``.)
-
-Speed: all phases are linear in frequency, so over a uniformly spaced band each
-exponential is advanced from channel to channel by one complex multiplication, in loops
-over terms that vectorise; the remaining sines and cosines use :func:`sincos`, a
-branch-free polynomial that vectorises too (libm's do not).  Tile factors are computed once
-per distinct tile layout (HBA0 and HBA1 of a station share one).
+The response formula and the evaluator: docs/beam.md ("The LOFAR fast evaluator").
 """
 
 from __future__ import annotations

@@ -1,30 +1,14 @@
 """Mueller matrices of beam Jones matrices, the polarized beam and the Stokes I leakage.
 
-For stations p and q with Jones matrices ``J_p``, ``J_q`` mapping the sky electric field in
-the (North, East) basis to the voltages of (X, Y) feeds (the basis every beam model
-returns), feeds of type ``feed`` see ``C J_p`` with ``C`` from
-:func:`msleak.conventions.feed_basis_matrix` (identity for linear feeds, (X, Y) -> (R, L)
-for circular ones). The correlations of a source with brightness matrix ``B`` are
-``C J_p B J_q^H C^H``; stacking 2x2 matrices row by row,
-``vec(A B A'^H) = (A kron conj(A')) vec(B)``, so the Mueller matrix mapping sky Stokes
-(I, Q, U, V) to apparent Stokes is::
+:func:`jones_to_mueller` maps (I, Q, U, V) of the sky to apparent Stokes for stations p
+and q, M = S_feed^-1 (C J_p kron conj(C J_q)) S_linear (``S``, ``C`` from
+:mod:`msleak.conventions`); it is the same for linear and circular feeds.
+:func:`polarized_beam` is sqrt(M[1,1]^2 + M[2,2]^2), :func:`leakage` is
+sqrt(M[0,1]^2 + M[0,2]^2) / M[0,0] (0-based, from the real part of M), :func:`to_db`
+gives 10 log10 with a floor.
 
-    M = S_feed^-1 (C J_p kron conj(C J_q)) S_linear
-
-with ``S`` from :mod:`msleak.conventions` (correlations = S @ (I, Q, U, V)). Since
-``(C kron conj C) S_linear = S_circular``, M is the same for both feed types: a physical
-beam leaks Q into I whatever products the correlator forms. Identity Jones matrices give
-the identity. For ``J_p = J_q`` the matrix is real.
-
-Figures of merit (0-based indices)::
-
-    polarized beam   sqrt(M[1,1]^2 + M[2,2]^2)
-    leakage          sqrt(M[0,1]^2 + M[0,2]^2) / M[0,0]      (Q, U -> I, fraction of I)
-
-Both are computed from the real part of ``M``.  dB values are ``10 log10`` (Mueller
-entries are power-like) of the quantity divided by its value at the phase centre for the
-polarized beam; the leakage is already a ratio and is shown as ``10 log10(leakage)`` of the
-phase-centre-corrected beam (it is zero, -inf dB, at the centre).
+Derivation, the figures of merit and their frames: docs/beam.md ("Mueller matrices and
+the maps") and docs/science.md section 4.
 """
 
 from __future__ import annotations

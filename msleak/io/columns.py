@@ -1,21 +1,13 @@
 """Writing visibility columns into a Measurement Set: creation, chunked writes, provenance.
 
-* :func:`check_writable` refuses a read-only MS with a one-line message (also when running
-  as root, where the file system would let us write: no write permission bit at all on
-  the MS directory or its ``table.dat`` counts as read-only).
-* :func:`ensure_data_column` creates a column shaped like DATA (same cell shape, value
-  type and column options) in a *tiled* storage manager: DATA's own tiled manager type and
-  tile shape when DATA is tiled, otherwise ``TiledColumnStMan`` (fixed shapes) or
-  ``TiledShapeStMan`` (shapes varying per row). Compressing managers (Dysco) are never
-  copied, model visibilities stay exact.
-* :func:`write_rows` writes a block of rows in contiguous runs (or via a row selection).
-* The run state lives in the column keyword ``MSLEAK_PREDICT`` (a record, see
-  :func:`read_run_state`): provenance (sky, beam, correction, msleak version, ...), the
-  ``complete`` flag and per-(field, data description) progress, updated and flushed after
-  every chunk. An interrupted run thus leaves a readable MS whose column says it is
-  incomplete and how far it got; rerunning the same command resumes there.
-* A run that is *refused* part-way (an input problem found while running) is undone
-  instead with a :class:`Rollback`: the MS files are put back byte for byte.
+:func:`check_writable` refuses a read-only MS; :func:`ensure_data_column` creates a
+column shaped like DATA in a tiled storage manager (never a compressing one);
+:func:`write_rows` writes a block of rows; the run state (provenance, ``complete``,
+per-group progress) lives in the column keyword ``MSLEAK_PREDICT``
+(:func:`read_run_state`), updated after every chunk so an interrupted run can resume;
+a :class:`Rollback` puts the MS files back as they were when a run is refused part-way.
+
+Column options, run state and safety: docs/predict.md ("Output").
 """
 
 from __future__ import annotations

@@ -1,21 +1,13 @@
 """FITS sky cubes: write msleak's cubes, read any cube with celestial + FREQ (+ STOKES)
-axes, and convert between the internal :class:`~msleak.sky.cube.SkyCube` and the sky
-Dataset of the Python API (docs/sky.md, docs/products.md).
+axes, and convert between :class:`~msleak.sky.cube.SkyCube` and the sky Dataset.
 
-Written layout (primary HDU, float32 by default)::
+:func:`write_cube` writes a 4-D RA---SIN, DEC--SIN, FREQ, STOKES image with the
+generator's parameters as ``HIERARCH MSLEAK`` cards; :func:`read_cube` reads any axis
+order and projection (a cube without STOKES axis is the Stokes parameter ``stokes``,
+default I); :func:`dataset_from_cube` and :func:`cube_from_dataset` convert to and from
+the Python API's Dataset.
 
-    NAXIS1 = nx  RA---SIN   CDELT1 < 0, deg
-    NAXIS2 = ny  DEC--SIN   deg            (LONPOLE = 180)
-    NAXIS3 = nchan FREQ     Hz, channel i at CRVAL3 + i * CDELT3
-    NAXIS4 = nstokes STOKES Q, U = 2, 3 (FITS codes)
-    BUNIT  = 'K' or 'JY/PIXEL'
-
-plus the generator's parameters as ``HIERARCH MSLEAK ...`` cards (``MSLEAK POLFRAME =
-'LOCAL-NORTH'``: Q and U are referred to the local celestial North of each pixel, the
-FITS convention) and a HISTORY card with the command line. Reading accepts any axis
-order, any celestial projection, CUNIT3 in any frequency unit, degenerate extra axes, and
-a missing STOKES axis (then the cube is taken to be the Stokes parameter given by
-``stokes``, default I).
+Written and accepted layouts: docs/sky.md ("FITS cubes") and docs/products.md.
 """
 
 from __future__ import annotations

@@ -1,26 +1,13 @@
 """makesourcedb / BBS text sky models (the LOFAR format DP3 reads): point sources.
 
-Format (see the makesourcedb page of the LOFAR wiki and DP3's SkymodelToSourceDB.cc)::
+:func:`read_skymodel` reads a makesourcedb file into
+:class:`~msleak.sky.sources.PointSources` with DP3's semantics (fluxes in Jy, frequencies
+in Hz, RotationMeasure in rad m^-2, angles as casacore reads them); only point sources
+are read. :func:`read_sky` reads any sky predict takes, a FITS cube or a makesourcedb
+file, as point sources, optionally re-centred and cropped to a field of view.
 
-    format = Name, Type, Ra, Dec, I, Q, U, V, ReferenceFrequency, SpectralIndex='[]',
-             RotationMeasure          (one line in the file)
-    # comment lines start with '#'
-    src1, POINT, 08:13:36.0, +48.13.03.0, 10.0, 0.5, 0.2, 0.0, 150e6, [-0.7], 3.5
-
-The format line may also be written ``# (Name, Type, ...) = format``. Values are comma
-separated; ``[...]`` and quoted values may contain commas; a field may carry a default
-(``Field='value'``) or a fixed value (``Field=fixed'value'``). Angles as casacore reads
-them: RA ``hh:mm:ss.sss`` (or ``12h30m``, ``187.5deg``), Dec ``+dd.mm.ss.sss`` (colons are
-not allowed in Dec), or a number with a unit (``deg``, ``rad``, ``arcmin``, ``arcsec``; a
-bare number is radians). Fluxes in Jy, frequencies in Hz, RotationMeasure in rad m^-2,
-PolarizationAngle in rad. Semantics follow DP3: an empty I is 1 Jy; the spectral index
-scales Stokes I only; with RotationMeasure, Q/U (at the reference frequency or
-ReferenceWavelength) or PolarizedFraction/PolarizationAngle (at lambda = 0) define a
-polarized fraction of I rotated as 2 (angle + RM lambda^2).
-
-Only point sources (Type POINT or empty) are read; patch lines (empty Name) are skipped.
-:func:`read_sky` reads any sky predict takes, a FITS cube or a makesourcedb file, as point
-sources (docs/sky.md).
+The accepted format, fields and spectral/polarization semantics: docs/sky.md
+("Point sources for predict", "makesourcedb files").
 """
 
 from __future__ import annotations

@@ -1,26 +1,14 @@
 """Run independent chunk tasks with dask and hand their results back in order.
 
-A :class:`Runner` executes ``func(job, shared)`` for a stream of jobs on one of dask's
-schedulers and yields ``(job, result)`` **in the order of the jobs**, keeping at most
-``window`` jobs in flight, so the caller (the driver) can write results to a Measurement
-Set or fold partial sums in a fixed order whatever the scheduler:
+:func:`open_runner` returns a :class:`Runner` for a scheduler (``sync``, ``threads``,
+``processes``, or a dask.distributed address or ``Client``); :meth:`Runner.map` runs
+``func(job, shared)`` for a stream of jobs and yields ``(job, result)`` in job order,
+with at most ``window`` jobs in flight. Each task gets a share of the cores as kernel
+(numba, ducc0) threads (:func:`task_threads`); chunks are sized with
+:attr:`Runner.memory_per_task`. casacore calls inside tasks are serialised by
+:data:`CASACORE_LOCK`.
 
-``sync``
-    Every task runs in the calling thread, one after the other, with the kernels' own
-    threads (numba, ducc0) left at their defaults: the serial path.
-``threads``
-    dask's threaded scheduler (one process, ``workers`` threads). Each task gets
-    ``cores // workers`` numba/ducc0 threads. casacore calls inside tasks are serialised
-    by :data:`CASACORE_LOCK`.
-``processes``
-    dask's multiprocessing scheduler on a pool of ``workers`` spawned processes.
-ADDRESS
-    A running dask.distributed scheduler (``tcp://host:8786``, ...) or a
-    ``distributed.Client``. Each task gets ``cores // threads-on-its-host`` kernel threads.
-
-Memory: the caller sizes its chunks with :attr:`Runner.memory_per_task` (the memory limit
-divided among the tasks that run at the same time); results waiting to be consumed are
-bounded by the window.
+Schedulers, thread budgets and memory: docs/parallel.md.
 """
 
 from __future__ import annotations

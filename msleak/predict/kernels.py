@@ -1,43 +1,14 @@
-"""Measurement-equation kernels: pure functions on arrays (numba + BLAS).
+"""Measurement-equation kernels of predict: pure functions on arrays (numba + BLAS).
 
-Sign convention. The Measurement Set stores, for the row (ANTENNA1 = p, ANTENNA2 = q),
-uvw_pq = x_q - x_p (antenna 2 minus antenna 1, projected on the J2000 u, v, w axes). The
-visibility V_pq = < e_p e_q^* > of a point source is then
+The kernels compute V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i uvw_pq . (l, m, n - 1) / lambda)
+with uvw_pq = x_q - x_p (antenna 2 minus antenna 1, the MS convention), factorised per
+station (x_p from :mod:`msleak.predict.stations`) and evaluated as two BLAS ``herk`` per
+(time, channel). :func:`predict_grams` predicts several skies that share directions in one
+pass, each exactly as if run alone. All in the linear (X, Y) feed basis
+(:func:`linear_to_circular` converts); phases float64, matrices in the output precision.
 
-    V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i (u l + v m + w (n - 1))),   (u, v, w) = uvw_pq / lambda
-
-which is the textbook exp(-2 pi i (u l + v m + w (n - 1))) (docs/science.md section 4)
-written for the baseline vector x_p - x_q (the RIME's u_pq = u_p - u_q). This is exactly what DP3 computes from the
-MS's UVW column (``base/Simulator.cc``: conj(phasor_p) phasor_q, phasor = exp(+2 pi i
-x . lmn / lambda)), and the DP3 comparison in the tests checks it end to end.
-
-Writing uvw_pq = x_q - x_p with per-station coordinates x_p (see
-:mod:`msleak.predict.stations`), the phase factorises per station and
-
-    V_pq = sum_s A_p(s) B_s A_q(s)^H,    A_p(s) = J_p(s) exp(-2 pi i x_p . (l, m, n - 1) / lambda).
-
-The brightness matrix is Hermitian, B_s = W_s diag(sigma_s) W_s^H with sigma = +-1 (its
-eigen-decomposition with sqrt|eigenvalue| folded into W; zero eigenvalues are dropped).
-Stacking the 2x2 blocks Z_p(s) = A_p(s) W_s of all stations as a (2 nstation, ncol) matrix
-per (time, channel) (stored transposed so that each station's row is written
-contiguously), the whole 2 nstation x 2 nstation visibility matrix of all baselines is
-two Hermitian rank-k updates (BLAS ``herk``):
-
-    V = Z+ Z+^H - Z- Z-^H,
-
-half the work of the general ``X Y^H`` product. Each (time, channel) is independent; the
-numba kernel runs them in parallel with one single-threaded BLAS call each. Per-station
-phases are evaluated once per block of channels and advanced by a constant complex step
-per channel when the channels are evenly spaced (else evaluated per channel).
-
-Several skies whose directions are among the same set (fields of view cropped from one
-cube, other realisations on the same pixel grid) share the phases and the matrices
-A_p(s) (:func:`predict_grams`); each sky has its own W, Z and Gram product, computed
-with exactly the operations of a run with that sky alone.
-
-Everything is computed in the *linear* feed basis (X, Y), the basis the beam models return
-Jones matrices in; :func:`linear_to_circular` converts the visibilities for circular feeds.
-Phases are always evaluated in float64; the matrices Z and V are in the output precision.
+Sign convention, factorisation and sharing between skies: docs/predict.md and
+docs/science.md section 4.
 """
 
 from __future__ import annotations

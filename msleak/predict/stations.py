@@ -1,22 +1,12 @@
 """Per-station coordinates from a Measurement Set's own UVW column.
 
-The factorised predict needs, for every time, station coordinates x_p (m) with
+:func:`station_coordinates` fits, per time, station coordinates x_p (m) with
+uvw_pq = x_q - x_p (p = ANTENNA1, q = ANTENNA2) by least squares over the
+cross-correlation rows, and reports the rows the fit does not reproduce within
+:func:`uvw_tolerance` (a phase-error bound); predict computes those rows from their own
+UVW (:mod:`msleak.predict.baselines`).
 
-    uvw_pq = x_q - x_p      (p = ANTENNA1, q = ANTENNA2 of the row)
-
-so that exp(+2 pi i uvw_pq . s / lambda) = exp(-2 pi i x_p . s / lambda) exp(+2 pi i x_q . s / lambda)
-(the MS convention: antenna 2 minus antenna 1; see :mod:`msleak.predict.kernels` for the
-sign of the phase). Such x_p exist for any MS whose UVW were computed from antenna
-positions (casacore, CASA, DP3, msleak simulate), to the precision the UVW were stored
-with (float32 in an MS converted from uvfits). The coordinates are fitted by least squares
-over the cross-correlation rows of one time (the gauge, a common offset per connected
-group of stations, cancels in every baseline); rows the fit does not reproduce within a
-tolerance are dropped from the fit, worst first, and reported, so that predict computes
-them from their own UVW instead (:mod:`msleak.predict.baselines`).
-
-The tolerance is a phase error (:func:`uvw_tolerance`): |uvw_row - (x_q - x_p)| = d changes
-the phase of a source at (l, m, n - 1) by 2 pi nu / c |d . (l, m, n - 1)|, at most
-2 pi nu_max d r_max / c with r_max the largest |(l, m, n - 1)| of the sky.
+The fit and the tolerance: docs/predict.md ("UVW that are not antenna-based").
 """
 
 from __future__ import annotations

@@ -1,21 +1,12 @@
-"""Delay transform: per uv cell FFT along frequency (docs/transform.md).
+"""Delay transform: per uv cell FFT along frequency.
 
-Convention (recorded as ``fft_convention`` in the delay product)::
+:func:`delay_transform` windows (:func:`spectral_window`) and FFTs the visibilities of
+every uv cell along frequency, with delays from :func:`delay_axis` (s, fftshift order,
+0 central); it records ``window_norm`` so the power spectrum is window-independent for
+white noise. Channels empty in every cell (:func:`channel_mask`) enter as zeros; cells
+with partial channel coverage are dropped or zero-filled (``partial``).
 
-    V~(b, tau_k) = (1 / N) sum_{n=0}^{N-1} w_n V(b, nu_n) exp(-2 pi i n k / N)
-    tau_k = k / (N dnu)  (s),  k = -N/2 .. N/2 - 1 (0 central, numpy fftshift order)
-
-``nu_n = nu_0 + n dnu``: the phase reference is the first channel (irrelevant for power).
-``w_n`` is the spectral window (``none``: all ones). ``window_norm = sum w_n^2 / N`` is
-recorded; the PS divides ``|V~|^2`` by it so white noise keeps the same level whatever
-the window (for window ``none``, ``window_norm = 1`` and P3D = |V~|^2 exactly, with
-Parseval ``sum_k |V~_k|^2 = (1/N) sum_n |V_n|^2``).
-
-Empty channels: a channel with no data in any uv cell is a flagged channel; it enters
-the transform as zero (the window is applied as usual; ``window_norm`` is computed with
-those channels zeroed, i.e. ``sum (w_n m_n)^2 / N`` with the channel mask m). A cell
-with data in some but not all of the remaining channels is dropped (``partial='drop'``,
-the default: its weight becomes 0) or zero-filled (``partial='zero'``).
+The FFT convention and the treatment of empty channels: docs/transform.md.
 """
 
 from __future__ import annotations

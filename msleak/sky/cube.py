@@ -1,25 +1,13 @@
 """Sky cubes: Stokes x frequency x image-plane arrays with a celestial WCS.
 
-Conventions
------------
-* ``SkyCube.data`` has shape ``(stokes, freq, y, x)``: ``x`` is the first (longitude, RA)
-  FITS axis and ``y`` the second (latitude, Dec) axis; pixel (0, 0) is FITS pixel (1, 1).
-* The cubes msleak makes use the SIN (orthographic) projection about the phase centre,
-  RA increasing to the left (CDELT1 < 0), LONPOLE = 180 deg so that the orientation is
-  continuous up to and including the celestial pole (Dec = 90 exactly): the projection-
-  plane offsets are then the direction cosines (l, m) of docs/science.md section 4,
-  l = -(x - x_ref) * |CDELT1|, m = (y - y_ref) * CDELT2 (radians).
-* Brightness units are ``"K"`` (Rayleigh-Jeans brightness temperature) or ``"Jy/pixel"``
-  (flux density of the pixel), related by S = 2 k_B T Omega_pix / lambda^2 with Omega_pix
-  the true solid angle of each pixel (Delta l Delta m / n for SIN).
-* Polarization frame (FITS/IAU convention): Stokes Q and U of every pixel are referred to
-  the local celestial North at that pixel's direction, the polarization angle
-  chi = atan2(U, Q) / 2 counted from North through East. This is the frame of the beam's
-  (North, East) basis at each source in predict. The image +y axis points along local
-  North only on the central meridian: at a pixel it points at the position angle psi
-  (:func:`y_axis_position_angle`), up to +-10.6 deg in the corners of a 15 deg cube at
-  Dec 48 deg and any angle around a celestial pole. ``meta["POLFRAME"]`` is
-  ``"LOCAL-NORTH"`` for cubes msleak makes.
+:class:`SkyCube` holds ``data`` of shape ``(stokes, freq, y, x)`` (``x`` the first, RA
+FITS axis; pixel (0, 0) is FITS pixel (1, 1)) in ``"K"`` or ``"Jy/pixel"``, with Q and U
+referred to each pixel's local celestial North (``meta["POLFRAME"] = "LOCAL-NORTH"``).
+Helpers make the SIN WCS msleak uses (:func:`make_celestial_wcs`), give pixel directions
+and true solid angles, convert units, crop, re-centre, and give the position angle of
+the image +y axis per pixel (:func:`y_axis_position_angle`).
+
+Geometry, units and the polarization frame: docs/sky.md ("Conventions").
 """
 
 from __future__ import annotations

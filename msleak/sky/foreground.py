@@ -1,34 +1,13 @@
 """Diffuse polarized Galactic foreground cubes after Jelic et al. (2008, 2010), "model B".
 
-A box of ``npix x npix`` lines of sight and ``ncells_los`` cells along each (a slab
-``depth_pc`` deep, the observer in front of cell 0) holds
+:func:`generate_foreground_cube` fills a slab of ``npix x npix`` lines of sight and
+``ncells_los`` cells (observer in front of cell 0) with a random magnetic field and
+log-normal thermal and cosmic-ray electrons (:func:`build_box`, :class:`ForegroundParams`),
+integrates the Faraday-rotated synchrotron emission per channel and returns a
+:class:`~msleak.sky.cube.SkyCube` of Q and U in K (rms |P| at ``ref_freq_hz`` equal to
+``p_rms_k``, Q and U referred to each pixel's local North); one seed, one cube bit for bit.
 
-* a magnetic field B = B_regular + B_random, B_random a Gaussian random vector field
-  with P(k) ~ k^-b_index (divergence-free by default) and rms |B_random| = b_random_rms;
-* thermal electrons n_e, log-normal about ``ne_mean`` with log-width ``ne_sigma_ln``
-  (the logarithm is a Gaussian random field with P(k) ~ k^-ne_index);
-* cosmic-ray electrons n_CR (relative units, mean 1), log-normal in the same way.
-
-Per cell: polarized synchrotron emissivity eps = Pi n_CR B_perp^((p+1)/2) (Pi =
-(p+1)/(p+7/3) the intrinsic fraction), intrinsic angle chi0 = angle of B_perp + 90 deg,
-Faraday thickness 0.812 n_e B_par dl. The cube is P = sum_z eps exp(2i (chi0 + phi
-lambda^2)) (see :mod:`msleak.sky.faraday`), scaled in brightness temperature as nu^-beta,
-beta = (p + 3) / 2, and normalised so that the rms of |P| over the map at ``ref_freq_hz``
-equals ``p_rms_k`` (the emissivity's absolute scale is the one free calibration constant).
-
-Box axes: z away from the observer, y along the image +y axis (north at the centre), x
-along the image x axis (west at the centre). Sky-plane components: B_north = B_y,
-B_east = -B_x; B_par = -B_z (positive towards the observer gives positive Faraday depth).
-The box is a flat slab, so its angles are referred to the image +y axis; the cube's Q and
-U are then turned to the FITS convention, the local North of each pixel (see
-:mod:`msleak.sky.cube`): Q + iU = (Q + iU)(+y) exp(2i psi), psi the position angle of
-the image +y direction at the pixel (:func:`msleak.sky.cube.y_axis_position_angle`).
-A regular field that is uniform in the image therefore has a polarization angle that
-turns with right ascension around a celestial pole.
-
-Every random field has its own child of one :class:`numpy.random.SeedSequence`, so the
-same seed gives the same cube bit for bit, and changing one field's options leaves the
-others unchanged.
+Model, box axes, calibration, polarization frame: docs/sky.md and docs/science.md section 3.
 """
 
 from __future__ import annotations

@@ -1,21 +1,12 @@
 """Array layouts: LOFAR stations from ``lofarantpos``, or any array from a text file.
 
-A :class:`Layout` holds station names and ITRF positions; for LOFAR HBA it also carries
-the per-field data EveryBeam needs (coordinate axes, tile positions, dipole offsets),
-written by :mod:`msleak.telescope.ms_create` into the LOFAR subtables.
+A :class:`Layout` holds station names and ITRF positions (m); for LOFAR HBA it also
+carries the per-field data EveryBeam needs (:class:`FieldLayout`), which
+:mod:`msleak.telescope.ms_create` writes into the LOFAR subtables.
+:func:`lofar_hba_core` gives the LOFAR HBA core, :func:`read_layout_file` reads a
+``--layout`` file (ITRF, or ENU about a reference position via :func:`enu_to_itrf`).
 
-Layout text files (``--layout FILE``)::
-
-    # comment lines start with '#'
-    frame = enu                 # or itrf (default itrf)
-    reference = 3826577.1,461022.9,5064892.8   # ITRF X,Y,Z (m) of the ENU origin;
-                                # default: the LOFAR array reference position
-    diameter = 30.75            # station/dish diameter in m (default 30.75)
-    telescope = MYARRAY         # OBSERVATION::TELESCOPE_NAME (default CUSTOM)
-    ST01   0.0     0.0    0.0   # name and x, y, z in the chosen frame (m)
-    ST02 120.0    35.0    0.5   [diameter]
-
-In the ENU frame x points East, y North and z Up at the reference position (WGS84).
+The layout file format: docs/simulate.md ("Other arrays: --layout FILE").
 """
 
 from __future__ import annotations
