@@ -304,7 +304,10 @@ def test_simulate_sigkill_and_interrupt(tmp_path):
     # interrupt always lands while the MS is being written
     args = [sys.executable, "-m", "msleak", "-v", "simulate", str(out), "--stations",
             "CS00[1-7]HBA*", "--duration", "12", "--interval", "10", "--nchan", "8"]
-    proc = subprocess.Popen(args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # a shell starts background jobs with SIGINT ignored, and Python then installs no
+    # KeyboardInterrupt handler: give the child the default disposition, as a terminal does
+    proc = subprocess.Popen(args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     buf = _wait_for(proc, b"creating")       # the tables are being made from here on
     time.sleep(0.2)
     proc.send_signal(signal.SIGINT)
