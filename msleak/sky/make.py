@@ -16,7 +16,7 @@ import xarray as xr
 
 from msleak.errors import InputError
 from msleak.io.fits import cube_from_dataset, dataset_from_cube, is_fits, read_cube, write_cube
-from msleak.io.products import call_record
+from msleak.io.products import call_record, refuse_existing
 from msleak.io.skymodel import read_sky, write_skymodel
 from msleak.sky.cube import SkyCube, Units, convert_units, recentre
 from msleak.sky.cube import crop as crop_cube
@@ -155,9 +155,8 @@ def _phase_centre(value: tuple[float, float] | None) -> tuple[float, float] | No
 
 
 def _refuse_existing(paths, overwrite: bool) -> None:
-    for p in paths:
-        if p is not None and Path(p).exists() and not overwrite:
-            raise InputError(f"{p} exists; choose another name or pass --overwrite")
+    for path in paths:
+        refuse_existing(path, overwrite)
 
 
 def _refuse_generation_options(options: dict) -> None:
