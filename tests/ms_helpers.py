@@ -81,3 +81,12 @@ def copy_spectral_window(ms, shift_hz: float) -> None:
                 t.putcell(col, 1, t.getcell(col, 0))
         t.putcell("CHAN_FREQ", 1, t.getcell("CHAN_FREQ", 0) + shift_hz)
         t.putcell("REF_FREQUENCY", 1, t.getcell("REF_FREQUENCY", 0) + shift_hz)
+
+
+def one_error_line(result) -> str:
+    """The single ``msleak: error:`` line of a click result that exited with status 2."""
+    assert result.exit_code == 2, (result.output, result.exception)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("msleak: error:"), lines
+    assert "Traceback" not in result.output
+    return lines[0]

@@ -154,7 +154,7 @@ def test_new_option_errors(small_lofar_ms, tmp_path, args, message):
     (dict(npix=4.5), "--npix must be an integer"),
     (dict(freq=-5.0), "--freq must be positive"),
     (dict(beam="none"), "unknown --beam 'none'"),
-    (dict(beam="everybeam", diameter=30.0), "--diameter only applies to --beam dipole"),
+    (dict(beam="everybeam", diameter=30.0), "--diameter applies to --beam dipole only"),
     (dict(basis="sky"), "unknown Q,U basis 'sky'"),
     (dict(station="CS999HBA0"), "--station 'CS999HBA0' is not an antenna"),
 ])

@@ -11,7 +11,7 @@ import pytest
 from msleak.cli import COMMANDS, cli
 
 #: commands whose output is their positional argument (they only create)
-CREATE = {"simulate": "out", "sky": "out", "paper": "outdir"}
+CREATE = {"simulate": "out", "sky": "out", "paper": "outdir", "forecast": "outdir"}
 #: commands that turn an input into a product named by -o/--output
 TRANSFORM = {"beam", "grid", "transform", "ps", "leakage"}
 #: one-way switches that change what is computed (not --x/--no-x pairs)

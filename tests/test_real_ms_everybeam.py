@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from casa_ms import build_ms
-from ms_helpers import phase_centre, write_sky
+from ms_helpers import phase_centre, write_sky, one_error_line
 from msleak._everybeam import everybeam_telescope, import_everybeam
 from msleak.cli import cli
 from msleak.io.ms import column_names
@@ -24,14 +24,6 @@ REFUSED = ("MWA", "HERA", "VLA", "OVRO_MMA", "UNKNOWN", "LOFAR")
 
 def _invoke(args):
     return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def _one_error_line(result) -> str:
-    assert result.exit_code == 2, (result.output, result.exception)
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("msleak: error:"), lines
-    assert "Traceback" not in result.output
-    return lines[0]
 
 
 def _sky(ms, path):
@@ -49,11 +41,11 @@ def _no_mwa_beam_file(monkeypatch):
 def test_beam_and_predict_refused_with_dipole_remedy(tmp_path, telescope, beam):
     ms = build_ms(tmp_path / "obs.ms", telescope=telescope, placeholders=PLACEHOLDERS)
     option = [] if beam is None else ["--beam", beam]
-    line = _one_error_line(_invoke(["beam", ms, "-o", tmp_path / "b.png", *option]))
+    line = one_error_line(_invoke(["beam", ms, "-o", tmp_path / "b.png", *option]))
     assert "`--beam dipole`" in line
     assert not (tmp_path / "b.png").exists() and not (tmp_path / "b.h5").exists()
     before = column_names(ms)
-    line = _one_error_line(_invoke(["predict", ms, "--sky", _sky(ms, tmp_path / "s.skymodel"),
+    line = one_error_line(_invoke(["predict", ms, "--sky", _sky(ms, tmp_path / "s.skymodel"),
                                     *option]))
     assert "`--beam dipole`" in line
     assert column_names(ms) == before
@@ -61,7 +53,7 @@ def test_beam_and_predict_refused_with_dipole_remedy(tmp_path, telescope, beam):
 
 def test_unknown_telescope_message_names_the_known_ones(tmp_path):
     ms = build_ms(tmp_path / "hera.ms", telescope="HERA")
-    line = _one_error_line(_invoke(["beam", ms, "-o", tmp_path / "b.png"]))
+    line = one_error_line(_invoke(["beam", ms, "-o", tmp_path / "b.png"]))
     assert "TELESCOPE_NAME 'HERA'" in line
     assert "AARTFAAC, LOFAR, MID, MWA, OSKAR*, SKA-LOW" in line
 
@@ -73,7 +65,7 @@ def test_mwa_tile_pointing_and_coefficients(tmp_path, monkeypatch):
     import h5py
 
     bare = build_ms(tmp_path / "bare.ms", telescope="MWA")
-    line = _one_error_line(_invoke(["beam", bare, "-o", tmp_path / "b.png"]))
+    line = one_error_line(_invoke(["beam", bare, "-o", tmp_path / "b.png"]))
     assert "MWA_TILE_POINTING" in line and "`--beam dipole`" in line
 
     ms = build_ms(tmp_path / "mwa.ms", telescope="MWA", mwa_tile_pointing=True,
@@ -93,7 +85,7 @@ def test_mwa_tile_pointing_and_coefficients(tmp_path, monkeypatch):
         if path is not None:
             monkeypatch.setenv("MWA_BEAM_FILE", str(path))
         for args in (["beam", ms, "-o", tmp_path / "b.png"], ["predict", ms, "--sky", sky]):
-            line = _one_error_line(_invoke(args))
+            line = one_error_line(_invoke(args))
             assert reason in line, line
             assert ("set MWA_BEAM_FILE to the path of mwa_full_embedded_element_pattern.h5, "
                     "or use `--beam dipole`") in line
@@ -102,7 +94,7 @@ def test_mwa_tile_pointing_and_coefficients(tmp_path, monkeypatch):
 
 def test_grid_names_its_own_remedies(tmp_path):
     ms = build_ms(tmp_path / "hera.ms", telescope="HERA")
-    line = _one_error_line(_invoke(["grid", ms, "--beam-area-model", "everybeam",
+    line = one_error_line(_invoke(["grid", ms, "--beam-area-model", "everybeam",
                                     "--uv-range", "1,200", "-o", tmp_path / "g.h5"]))
     assert "`--beam-area-model dipole`" in line and "`--beam-area SR`" in line
     assert "`--beam dipole`" not in line

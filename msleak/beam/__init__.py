@@ -1,8 +1,10 @@
 """Primary beams: Jones matrices per station, time, channel and direction, and Mueller maps.
 
-:func:`load_beam` loads a model for a Measurement Set: ``everybeam`` (LOFAR HBA through
-msleak's fast evaluator, other telescopes through EveryBeam), ``everybeam-direct``
-(EveryBeam's own calls), ``dipole`` (analytic, any MS) or ``none`` (identity). All
+:func:`load_beam` loads a model for a Measurement Set: ``everybeam`` (LOFAR HBA and
+SKA-Low through msleak's fast evaluators, other telescopes through EveryBeam),
+``everybeam-direct`` (EveryBeam's own calls), ``uvbeam`` (a UVBeam/beamfits file, HERA's by
+default), ``hyperbeam`` (the MWA tile through mwa_hyperbeam), ``dipole`` (analytic, any
+MS) or ``none`` (identity). All
 return ``J[station, time, channel, direction, 2, 2]`` (rows: feeds X, Y; columns: sky
 North, East), zero below the horizon; ``centre_correction=True`` gives ``J(s0)^-1 J(s)``.
 Mueller matrices and maps come from :mod:`msleak.beam.mueller` and the map functions.
@@ -22,7 +24,8 @@ from msleak.beam.mueller import jones_to_mueller, leakage, polarized_beam, to_db
 from msleak.errors import InputError
 
 __all__ = [
-    "BeamName", "BeamModel", "BEAM_NAMES", "BeamUnavailable", "load_beam", "IdentityBeam",
+    "BeamName", "BeamModel", "BEAM_NAMES", "BeamUnavailable", "load_beam", "beam_options",
+    "IdentityBeam",
     "invert_2x2",
     "jones_to_mueller", "polarized_beam", "leakage", "to_db",
 ]
@@ -36,7 +39,7 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
 
     Parameters
     ----------
-    model : {'everybeam', 'everybeam-direct', 'dipole', 'none'}
+    model : {'everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam', 'dipole', 'none'}
     ms : path
         Measurement Set.
     field_id, ddid : int, optional
@@ -47,7 +50,9 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         ANTENNA rows to use instead of those of the rows.
     **options
         ``everybeam``/``everybeam-direct``: ``element_model`` (EveryBeam element response
-        model name, default Hamaker for LOFAR).  ``dipole``: ``factor``
+        model name, default Hamaker for LOFAR).  ``uvbeam``: ``beam_file`` (default
+        pyuvsim's HERA beam).  ``hyperbeam``: ``element_model`` ('analytic' or 'fee'),
+        ``beam_file`` (the FEE model's HDF5 file).  ``dipole``: ``factor``
         ('airy' | 'gaussian' | 'none'), ``diameter_m``, ``feed_angle_deg``,
         ``ground_plane_height_m`` (see :class:`msleak.beam.dipole.DipoleBeam`).
 
@@ -80,6 +85,16 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         allowed = {"factor", "diameter_m", "feed_angle_deg", "ground_plane_height_m"}
         _check_options(model, options, allowed)
         return DipoleBeam.from_ms(ms, field_id=field_row, used_stations=used, **options)
+    if model == "uvbeam":
+        from msleak.beam.uvbeam import UVBeamModel
+
+        _check_options(model, options, {"beam_file"})
+        return UVBeamModel.from_ms(ms, field_id=field_row, used_stations=used, **options)
+    if model == "hyperbeam":
+        from msleak.beam.mwa import MwaBeam
+
+        _check_options(model, options, {"element_model", "beam_file"})
+        return MwaBeam.from_ms(ms, field_id=field_row, used_stations=used, **options)
     _check_options(model, options, {"element_model"})
     element_model = options.get("element_model", "default")
     if model == "everybeam":
@@ -90,6 +105,33 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
 
     return EveryBeamDirect(ms, element_model=element_model, field_id=field_row,
                            used_stations=used)
+
+
+def beam_options(model: str, *, diameter: float | None = None,
+                 element_model: str | None = None,
+                 beam_file: str | os.PathLike | None = None) -> dict:
+    """The :func:`load_beam` options of the command-line settings ``--diameter``,
+    ``--element-model`` and ``--beam-file`` (None: not given).
+
+    Raises
+    ------
+    InputError
+        A setting the model does not take, or a diameter that is not positive.
+    """
+    takes = {"diameter": ("dipole",), "element_model": ("everybeam", "everybeam-direct",
+                                                        "hyperbeam"),
+             "beam_file": ("uvbeam", "hyperbeam")}
+    given = {"diameter": diameter, "element_model": element_model, "beam_file": beam_file}
+    for name, value in given.items():
+        if value is not None and model not in takes[name]:
+            raise InputError(f"--{name.replace('_', '-')} applies to --beam "
+                             f"{' or '.join(takes[name])} only, not --beam {model}")
+    if diameter is not None and not diameter > 0:
+        raise InputError(f"--diameter takes a positive station diameter (m), got {diameter}")
+    options = {"diameter_m": None if diameter is None else float(diameter),
+               "element_model": element_model,
+               "beam_file": None if beam_file is None else str(beam_file)}
+    return {k: v for k, v in options.items() if v is not None}
 
 
 def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | None = None):

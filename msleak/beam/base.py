@@ -30,8 +30,8 @@ __all__ = ["BeamName", "BeamModel", "IdentityBeam", "invert_2x2", "BEAM_NAMES",
 
 log = logging.getLogger(__name__)
 
-BeamName = Literal["everybeam", "everybeam-direct", "dipole", "none"]
-BEAM_NAMES = ("everybeam", "everybeam-direct", "dipole", "none")
+BeamName = Literal["everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole", "none"]
+BEAM_NAMES = ("everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole", "none")
 
 
 class BeamUnavailable(InputError):
@@ -75,7 +75,7 @@ class BeamModel(abc.ABC):
     Attributes
     ----------
     name : str
-        The model name (``everybeam``, ``everybeam-direct``, ``dipole``, ``none``).
+        The model name (one of :data:`BEAM_NAMES`).
     n_stations : int
         Number of stations (ANTENNA rows).
     station_names : list of str
@@ -156,6 +156,17 @@ class BeamModel(abc.ABC):
         return self.jones(time_mjd_s, freq_hz, [ra0], [dec0], stations=stations)[..., 0, :, :]
 
     # -- helpers -------------------------------------------------------------------------
+    def _check_positions(self, positions: np.ndarray) -> None:
+        """Refuse a used station whose ITRF ``positions`` row (m) is not on the Earth."""
+        used = self.used_stations
+        radius = np.linalg.norm(positions[used], axis=1)
+        off = ~((radius > 6.2e6) & (radius < 6.5e6))
+        if np.any(off):
+            k = int(used[np.argmax(off)])
+            raise InputError(f"ANTENNA row {k} ({self.station_names[k]}) is used but its "
+                             f"POSITION is {np.linalg.norm(positions[k]) / 1e3:.0f} km from "
+                             "the geocentre, not an ITRF position on the Earth")
+
     def _check(self, time, freq, ra, dec, stations):
         time = np.atleast_1d(np.asarray(time, dtype=float))
         freq = np.atleast_1d(np.asarray(freq, dtype=float))

@@ -143,12 +143,7 @@ class DipoleBeam(BeamModel):
                 f"ANTENNA::DISH_DIAMETER gives no diameter (<= 0) for station(s) "
                 f"{', '.join(bad[:4])}{', ...' if len(bad) > 4 else ''}, so no Airy station "
                 "factor", remedy="pass the station diameter with `--diameter M`")
-        radius = np.linalg.norm(positions[used], axis=1)
-        if np.any((radius < 6.2e6) | (radius > 6.5e6)):
-            k = int(used[np.argmax((radius < 6.2e6) | (radius > 6.5e6))])
-            raise InputError(f"ANTENNA row {k} ({self.station_names[k]}) is used but its "
-                             f"POSITION is {np.linalg.norm(positions[k]) / 1e3:.0f} km from the "
-                             "geocentre, not an ITRF position on the Earth")
+        self._check_positions(positions)
         if ground_plane_height_m is not None and ground_plane_height_m <= 0:
             raise InputError("ground-plane height must be positive (m)")
         self.positions = positions

@@ -18,7 +18,7 @@ from typing import Literal, Sequence, get_args
 import numpy as np
 import xarray as xr
 
-from msleak.beam import load_beam
+from msleak.beam import beam_options, load_beam
 from msleak.beam.base import BeamModel
 from msleak.beam.coords import basis_rotation, transport_angle
 from msleak.beam.mueller import (
@@ -53,7 +53,7 @@ Basis = Literal["tangent", "local"]
 #: Q,U reference frames of beam maps (see :func:`mueller_maps`)
 BASES: tuple = get_args(Basis)
 #: beam models ``msleak beam`` maps
-MAP_BEAMS = ("everybeam", "everybeam-direct", "dipole")
+MAP_BEAMS = ("everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole")
 BASIS_DESCRIPTIONS = {
     "tangent": "Q,U in the phase centre's (North, East) basis parallel-transported along "
                "great circles to each pixel",
@@ -235,7 +235,8 @@ def _maps_dataset(mueller, pb0, times, hour_angles, l_deg, m_deg, ra, dec) -> xr
 def beam_maps(ms: str | os.PathLike, *, fov: float = 15.0, npix: int = 61,
               hour_angles: Sequence[float] | None = None, freq: float | None = None,
               beam: str = "everybeam", station: str | None = None,
-              diameter: float | None = None, invariant: bool = False,
+              diameter: float | None = None, element_model: str | None = None,
+              beam_file: str | os.PathLike | None = None, invariant: bool = False,
               basis: Basis = "tangent", field: int | str | None = None,
               output: str | os.PathLike | None = None, overwrite: bool = False) -> xr.Dataset:
     """Polarized-beam and leakage maps of the station beams of ``ms`` (``msleak beam``).
@@ -251,11 +252,11 @@ def beam_maps(ms: str | os.PathLike, *, fov: float = 15.0, npix: int = 61,
         observation; default 5 times spread over the rows of the field.
     freq : float, optional
         Hz; default the middle channel of the first spectral window.
-    beam : {'everybeam', 'everybeam-direct', 'dipole'}
+    beam : {'everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam', 'dipole'}
     station : str, optional
         One ANTENNA name; default the Mueller matrices of the field's stations averaged.
-    diameter : float, optional
-        Dipole beam: station diameter (m); default ANTENNA::DISH_DIAMETER.
+    diameter, element_model, beam_file : optional
+        Settings of the beam model, as in :func:`msleak.predict`.
     invariant : bool
         Recorded for the figure (attribute ``invariant``): plot the Q,U-frame-invariant
         polarized beam; the product holds both.
@@ -273,13 +274,14 @@ def beam_maps(ms: str | os.PathLike, *, fov: float = 15.0, npix: int = 61,
         (docs/beam.md).
     """
     command = call_record(beam_maps, dict(locals()))
-    _check_options(fov, npix, freq, beam, diameter, basis)
+    _check_options(fov, npix, freq, beam, basis)
+    options = beam_options(beam, diameter=diameter, element_model=element_model,
+                           beam_file=beam_file)
     if output is not None and Path(output).exists() and not overwrite:
         raise InputError(f"{output} exists; choose another name or pass --overwrite")
     ms = check_ms(ms)
     field_id = 0 if field is None else resolve_field(ms, field)
     plan = _plan(ms, field_id, station, freq)
-    options = {"diameter_m": diameter} if diameter is not None else {}
     model = load_beam(beam, ms, field_id=field_id, stations=plan.stations, **options)
     times, has = _map_times(ms, field_id, hour_angles, model.phase_centre[0], plan.position)
     log.info("beam maps of %s (%s) at %.3f MHz, hour angles %s h", ms, model.name,
@@ -295,7 +297,7 @@ def beam_maps(ms: str | os.PathLike, *, fov: float = 15.0, npix: int = 61,
     return ds
 
 
-def _check_options(fov, npix, freq, beam, diameter, basis) -> None:
+def _check_options(fov, npix, freq, beam, basis) -> None:
     """The option errors of ``msleak beam``, before any work."""
     if not 0 < fov < 180:
         raise InputError(f"--fov must be between 0 and 180 degrees, got {fov}")
@@ -305,8 +307,6 @@ def _check_options(fov, npix, freq, beam, diameter, basis) -> None:
         raise InputError(f"--freq must be positive (Hz), got {freq}")
     if beam not in MAP_BEAMS:
         raise InputError(f"unknown --beam {beam!r}: use one of {', '.join(MAP_BEAMS)}")
-    if diameter is not None and beam != "dipole":
-        raise InputError("--diameter only applies to --beam dipole")
     if basis not in BASES:
         raise InputError(f"unknown Q,U basis {basis!r}: use {' or '.join(BASES)}")
 

@@ -31,6 +31,7 @@ COMMANDS = {
     "ps": "ps:ps",
     "leakage": "leakage:leakage",
     "paper": "paper:paper",
+    "forecast": "forecast:forecast",
 }
 
 log = logging.getLogger("msleak")
@@ -109,6 +110,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
       msleak ps delay.h5 -o ps.h5
       msleak leakage ps.h5 -o leakage/
     or the whole study at once:  msleak paper OUTDIR [--quick]
+    or other telescopes' leakage:  msleak forecast OUTDIR [--quick]
     """
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug

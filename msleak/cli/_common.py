@@ -6,10 +6,11 @@ from typing import Sequence
 
 import click
 
-from msleak.errors import InputError
+from msleak.errors import InputError, MsleakError
 from msleak.parallel.runner import parse_memory
 
-__all__ = ["parse_float_list", "FloatList", "MemorySize", "cosmology_options"]
+__all__ = ["parse_float_list", "FloatList", "MemorySize", "cosmology_options", "beam_model_options",
+           "step_invoker"]
 
 
 def parse_float_list(text: str, n: int | None = None, name: str = "value") -> list[float]:
@@ -73,3 +74,34 @@ def cosmology_options(func):
     for option in reversed(options):
         func = option(func)
     return func
+
+
+def beam_model_options(func):
+    """``--element-model`` and ``--beam-file``: the settings of the beam models that take
+    them (:func:`msleak.beam.beam_options` refuses them for the others)."""
+    func = click.option(
+        "--beam-file", "beam_file", type=click.Path(exists=True, dir_okay=False),
+        default=None, metavar="FILE",
+        help="With --beam uvbeam: a UVBeam-readable E-field beam (beamfits, ...) [default: "
+             "pyuvsim's HERA beam, 100-200 MHz]; with --beam hyperbeam --element-model fee: "
+             "the MWA FEE HDF5 file [default: $MWA_BEAM_FILE].")(func)
+    return click.option(
+        "--element-model", "element_model", default=None, metavar="NAME",
+        help="With --beam everybeam[-direct]: EveryBeam's element response model (LOFAR: "
+             "hamaker; SKA-Low: oskar_dipole_cos, skala40_wave); with --beam hyperbeam: "
+             "analytic (default) or fee.")(func)
+
+
+def step_invoker(ctx: click.Context, command: str):
+    """``invoke(args)``: run one msleak command line in this process with the global
+    options of ``ctx`` (for multi-step commands such as ``msleak paper``); a failure says
+    to rerun ``msleak COMMAND`` to resume."""
+    root = ctx.find_root().command
+
+    def invoke(args):
+        rc = root.main(args=[*ctx.obj.get("global_args", []), *args], prog_name="msleak",
+                       standalone_mode=False, obj=ctx.obj)
+        if rc not in (None, 0):
+            raise MsleakError(f"`msleak {' '.join(args)}` failed (exit {rc}); fix what it "
+                              f"said above and rerun `msleak {command}` to resume")
+    return invoke

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from msleak.beam.maps import BASES, MAP_BEAMS, beam_maps
-from msleak.cli._common import FloatList
+from msleak.cli._common import FloatList, beam_model_options
 from msleak.errors import InputError
 from msleak.plot.beam import plot_beam_maps
 
@@ -30,8 +30,10 @@ from msleak.plot.beam import plot_beam_maps
 @click.option("--freq", type=float, default=None, metavar="HZ",
               help="Frequency (Hz). Default: the middle channel of the first spectral window.")
 @click.option("--beam", type=click.Choice(MAP_BEAMS), default="everybeam", show_default=True,
-              help="Beam model: everybeam (LOFAR, fast evaluator), everybeam-direct "
-              "(EveryBeam per direction, slow) or dipole (analytic, any MS).")
+              help="Beam model: everybeam (LOFAR, SKA-Low: fast evaluators), everybeam-direct "
+              "(EveryBeam per direction, slow), uvbeam (a UVBeam file, HERA's by default), "
+              "hyperbeam (the MWA tile) or dipole (analytic, any MS).")
+@beam_model_options
 @click.option("--station", default=None, metavar="NAME",
               help="Map one station (ANTENNA name). Default: Mueller matrices averaged over "
               "the stations that occur in the rows of the field.")
@@ -52,8 +54,8 @@ from msleak.plot.beam import plot_beam_maps
               help="Also write a PDF beside the figure.")
 @click.option("--overwrite", is_flag=True,
               help="Replace existing outputs (figure, PDF, product); refused otherwise.")
-def beam(ms, output, product, fov, npix, hour_angles, freq, beam, station, diameter, field,
-         invariant, basis, pdf, overwrite):
+def beam(ms, output, product, fov, npix, hour_angles, freq, beam, element_model, beam_file,
+         station, diameter, field, invariant, basis, pdf, overwrite):
     """Maps of the polarized beam sqrt(M11^2+M22^2) and of the Q,U->I leakage
     sqrt(M01^2+M02^2)/M00 of MS's station beams, normalised to the phase centre, in dB,
     at several hour angles (docs/science.md section 8).
@@ -72,7 +74,8 @@ def beam(ms, output, product, fov, npix, hour_angles, freq, beam, station, diame
         if path.exists():
             raise InputError(f"{path} exists; choose another name or pass --overwrite")
     ds = beam_maps(ms, fov=fov, npix=npix, hour_angles=hour_angles, freq=freq, beam=beam,
-                   station=station, diameter=diameter, invariant=invariant, basis=basis,
+                   station=station, diameter=diameter, element_model=element_model,
+                   beam_file=beam_file, invariant=invariant, basis=basis,
                    field=field, output=product, overwrite=overwrite)
     stations = (f" (station {station})" if station else
                 f" (mean of {len(ds.attrs['stations'].split(','))} stations)")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from msleak.errors import MsleakError
+from msleak.cli._common import step_invoker
 from msleak.study.config import StudyConfig
 from msleak.study.pipeline import run_study
 
@@ -74,18 +74,9 @@ def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, dur
       msleak paper study/ --quick
       msleak paper study/ --observed ncp=ncp_Q.fits,ncp_U.fits
     """
-    root = ctx.find_root().command
-
-    def invoke(args):
-        rc = root.main(args=[*ctx.obj.get("global_args", []), *args], prog_name="msleak",
-                       standalone_mode=False, obj=ctx.obj)
-        if rc not in (None, 0):
-            raise MsleakError(f"`msleak {' '.join(args)}` failed (exit {rc}); fix what it "
-                              "said above and rerun `msleak paper` to resume")
-
     cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed, seeds=seeds,
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
                       interval_s=interval_s, nchan=nchan)
-    report = run_study(cfg, invoke, overwrite=overwrite)
+    report = run_study(cfg, step_invoker(ctx, "paper"), overwrite=overwrite)
     click.echo(f"report: {report}")

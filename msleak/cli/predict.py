@@ -7,7 +7,7 @@ import sys
 import click
 
 from msleak.beam.base import BEAM_NAMES
-from msleak.cli._common import MemorySize
+from msleak.cli._common import MemorySize, beam_model_options
 from msleak.parallel.options import parallel_options
 from msleak.predict.engine import predict as run
 
@@ -32,11 +32,13 @@ def _split(_ctx, _param, value):
                    "once for every sky, or once per --sky in the same order.")
 @click.option("--beam", type=click.Choice(BEAM_NAMES),
               default="everybeam", show_default=True,
-              help="Station beam: fast LOFAR EveryBeam model, EveryBeam called directly, an "
-                   "analytic dipole, or no beam.")
+              help="Station beam: EveryBeam (LOFAR and SKA-Low through msleak's fast paths), "
+                   "EveryBeam called directly, a UVBeam file (HERA), the MWA tile "
+                   "(mwa_hyperbeam), an analytic dipole, or no beam.")
 @click.option("--diameter", "diameter", type=float, default=None, metavar="M",
               help="With --beam dipole: station diameter (m) of its Airy station factor "
                    "[default: ANTENNA::DISH_DIAMETER].")
+@beam_model_options
 @click.option("--column", "column", multiple=True, metavar="NAME",
               help="Column to write (created like DATA, tiled storage, if missing) "
                    "[default: MODEL_DATA]; with several --sky, one per --sky, all different.")
@@ -63,7 +65,7 @@ def _split(_ctx, _param, value):
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
-def predict(ms, sky, fov, beam, diameter, column, centre_correction, interpolate_frequency,
+def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, centre_correction, interpolate_frequency,
             double, memory_limit, overwrite_data, field, spw, restart, progress, scheduler,
             workers):
     """Predict the visibilities of SKY through the station beams into MS (one or more
@@ -96,6 +98,7 @@ def predict(ms, sky, fov, beam, diameter, column, centre_correction, interpolate
     """
     results = run(list(ms), list(sky), column=list(column) or ["MODEL_DATA"] * (len(sky) == 1),
                   fov=list(fov) or None, beam=beam, diameter=diameter,
+                  element_model=element_model, beam_file=beam_file,
                   centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,
                   double=double, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,

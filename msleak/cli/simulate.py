@@ -20,11 +20,13 @@ log = logging.getLogger(__name__)
 @click.option("--telescope", type=click.Choice(list(TELESCOPES)), default="lofar",
               show_default=True, help="lofar: the HBA core (48 fields); ska-low: an "
               "approximate SKA-Low core (224 stations of 256 elements, docs/ska_low.md) with "
-              "the PHASED_ARRAY table EveryBeam reads.")
+              "the PHASED_ARRAY table EveryBeam reads; hera: HERA's 350 dishes; mwa: the "
+              "MWA's 128 tiles (hera and mwa need pip install 'msleak[hera]' or "
+              "'msleak[mwa]'; docs/telescopes.md).")
 @click.option("--field", type=click.Choice(list(FIELD_PRESETS), case_sensitive=False),
               default=None, help="Observing preset: ncp (RA 0, Dec 90, 13 h), 3c196 "
               "(RA 123.4, Dec 48.2 deg, 8 h centred on transit) or eor0 (RA 0, Dec -27 deg, "
-              "8 h centred on transit). Default 3c196 for LOFAR, eor0 for SKA-Low, unless "
+              "8 h centred on transit). Default 3c196 for LOFAR, eor0 for the others, unless "
               "--phase-centre is given.")
 @click.option("--phase-centre", "phase_centre", type=FloatList(2), default=None,
               metavar="RA_DEG,DEC_DEG", help="Phase centre (J2000, degrees); overrides the preset.")
@@ -32,22 +34,26 @@ log = logging.getLogger(__name__)
               help="UTC start, e.g. 2012-12-16T20:00:00. Default: the preset's (3C196 and "
               "custom centres: centred on transit at the array).")
 @click.option("--duration", type=float, default=None, metavar="HOURS",
-              help="Synthesis time in hours [preset: 13 (ncp), 8 (3c196, eor0)].")
+              help="Synthesis time in hours [preset: 13 (ncp), 8 (3c196, eor0); 1 for hera "
+              "and mwa, whose beams do not track].")
 @click.option("--interval", type=float, default=120.0, show_default=True,
               metavar="SEC", help="Integration time in seconds.")
-@click.option("--freq-min", "freq_min", type=float, default=150e6, show_default=True,
-              metavar="HZ", help="Centre frequency of the first channel (Hz).")
+@click.option("--freq-min", "freq_min", type=float, default=None, metavar="HZ",
+              help="Centre frequency of the first channel (Hz) [default: 150e6; hera: "
+              "135e6, inside its beam file's 100-145 MHz].")
 @click.option("--nchan", type=int, default=50, show_default=True, metavar="N",
               help="Number of channels.")
 @click.option("--chan-width", "chan_width", type=float, default=195312.5, show_default=True,
               metavar="HZ", help="Channel width (Hz).")
 @click.option("--stations", default=None, metavar="PATTERN",
               help="Station (antenna field) names to use: shell patterns, comma-separated, "
-              "e.g. 'CS00[1-7]HBA*' (LOFAR) or 'S00*' (SKA-Low). Default: all stations of "
+              "e.g. 'CS00[1-7]HBA*' (LOFAR), 'S00*' (SKA-Low), 'HH1??' (HERA) or "
+              "'Tile0*' (MWA). Default: all stations of "
               "the telescope, or all of --layout.")
 @click.option("--layout", type=click.Path(exists=True, dir_okay=False), default=None,
               metavar="FILE", help="Layout text file for another array (format: "
-              "docs/simulate.md; with --telescope ska-low, real SKA-Low positions); a LOFAR "
+              "docs/simulate.md; with --telescope ska-low, hera or mwa, that telescope's "
+              "real positions); a LOFAR "
               "MS from a layout file has no LOFAR beam tables.")
 @click.option("--autocorrelations/--no-autocorrelations", default=False, show_default=True,
               help="Include autocorrelation rows.")

@@ -426,6 +426,7 @@ def ms_summary(ms: str | os.PathLike) -> str:
     corr = read_corr_types(ms)
     beam_tables = ("LOFAR beam tables" if has_lofar_tables(ms) else
                    "PHASED_ARRAY table" if has_subtable(ms, "PHASED_ARRAY") else
+                   "MWA_TILE_POINTING table" if has_subtable(ms, "MWA_TILE_POINTING") else
                    "no beam tables")
     lines = [f"Measurement Set {ms}",
              f"  telescope      {read_telescope_name(ms) or '?'} (with {beam_tables})",

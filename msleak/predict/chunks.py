@@ -108,15 +108,15 @@ def _load_beam(name: str, ms: Path, options: dict | None = None):
     return load_beam(name, ms, **(options or {}))
 
 
-def register_beam(token: str, beam: str, ms: Path, groups: list, diameter: float | None
+def register_beam(token: str, beam: str, ms: Path, groups: list, beam_options: dict
                   ) -> dict:
     """Load the beam model of the stations in ``groups`` for run ``token`` in this process
-    and return the options that name them (so no worker reads the main table predict
-    writes)."""
-    options = {} if beam == "none" else {"stations": np.unique(np.concatenate(
-        [read_used_antennas(ms, f, d) for f, d in groups]))}
-    if diameter is not None:
-        options["diameter_m"] = float(diameter)
+    (with the :func:`msleak.beam.load_beam` options ``beam_options``) and return the
+    options that name them (so no worker reads the main table predict writes)."""
+    options = dict(beam_options)
+    if beam != "none":
+        options["stations"] = np.unique(np.concatenate(
+            [read_used_antennas(ms, f, d) for f, d in groups]))
     with _BEAMS_LOCK:
         _BEAMS[token] = _load_beam(beam, ms, options)
     return options

@@ -23,6 +23,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
+from msleak.beam import beam_options
 from msleak.errors import InputError, MsleakError
 from msleak.io import columns as colio
 from msleak.io.ms import append_history, check_ms, open_table
@@ -42,7 +43,8 @@ PathLike = Union[str, os.PathLike]
 def predict(ms: PathLike | Sequence[PathLike], sky, *,
             column: str | None | Sequence[str] = "MODEL_DATA",
             fov: float | None | Sequence[float | None] = None, beam: str = "everybeam",
-            diameter: float | None = None, centre_correction: bool = True,
+            diameter: float | None = None, element_model: str | None = None,
+            beam_file: str | os.PathLike | None = None, centre_correction: bool = True,
             interpolate_frequency: bool = False, double: bool = False,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
@@ -65,9 +67,15 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         and the visibilities are returned.
     fov : float or sequence of float, optional
         Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
-    beam : {"everybeam", "everybeam-direct", "dipole", "none"}
+    beam : {"everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole", "none"}
     diameter : float, optional
         ``dipole`` beam: station diameter (m) instead of ANTENNA::DISH_DIAMETER.
+    element_model : str, optional
+        ``everybeam``: EveryBeam's element response model; ``hyperbeam``: 'analytic'
+        (default) or 'fee' (docs/telescopes.md).
+    beam_file : path, optional
+        ``uvbeam``: a UVBeam-readable E-field beam (default pyuvsim's HERA beam);
+        ``hyperbeam`` with 'fee': the MWA FEE HDF5 file.
     centre_correction : bool
         Remove the beam at the phase centre: V' = J_p(s0)^-1 V J_q(s0)^-H.
     interpolate_frequency : bool
@@ -101,11 +109,13 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     targets = make_targets(sky, column, fov, overwrite_data)
     budget = parse_memory(memory_limit)
     in_memory = targets[0].column is None
-    _check_options(paths, in_memory, beam, diameter)
+    options = beam_options(beam, diameter=diameter, element_model=element_model,
+                           beam_file=beam_file)
+    _check_options(paths, in_memory)
     dtype = np.dtype(np.complex128 if double else np.complex64)
     plans = [make_plan(p, targets, beam=beam, centre_correction=centre_correction,
                        interpolate_frequency=interpolate_frequency, dtype=dtype,
-                       field_sel=field, spw_sel=spw, diameter=diameter) for p in paths]
+                       field_sel=field, spw_sel=spw, beam_options=options) for p in paths]
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -120,12 +130,9 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     return results[0] if single_ms and one_sky else results
 
 
-def _check_options(paths: list[Path], in_memory: bool, beam: str, diameter) -> None:
+def _check_options(paths: list[Path], in_memory: bool) -> None:
     """Refuse options that do not go together; repair the MSs a killed run left (only
     when they are written)."""
-    if diameter is not None and (beam != "dipole" or not diameter > 0):
-        raise InputError("--diameter takes a positive station diameter (m) and applies to "
-                         "--beam dipole only")
     if in_memory and len(paths) > 1:
         raise InputError("column=None returns the visibilities of one Measurement Set; "
                          "give one MS, or a column to write")

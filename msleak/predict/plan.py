@@ -224,7 +224,7 @@ def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
 
 
 def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
-              dtype, field_sel, spw_sel, diameter) -> Plan:
+              dtype, field_sel, spw_sel, beam_options: dict) -> Plan:
     """Read the metadata of ``ms``, select its groups and prepare the skies (no writes)."""
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
@@ -239,11 +239,11 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
     skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
                                   interpolate_frequency) for f, d in groups}
     token = uuid.uuid4().hex
-    beam_options = register_beam(token, beam, ms, groups, diameter)
+    options = register_beam(token, beam, ms, groups, beam_options)
     common = {"beam": beam, "centre_correction": bool(centre_correction and beam != "none"),
               "interpolate_frequency": bool(interpolate_frequency),
               "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
-              "diameter_m": -1.0 if diameter is None else float(diameter),
+              "beam_options": dict(sorted(beam_options.items())),
               "msleak_version": __version__}
     settings = [{"sky": str(t.sky.resolve()) if isinstance(t.sky, Path) else t.label,
                  "sky_sha256": t.sha256,
@@ -254,7 +254,7 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                 groups=groups, feeds=feeds, total_rows=total_rows, targets=targets,
                 skies=skies, settings=settings,
                 settings_json=[json.dumps(s, sort_keys=True) for s in settings],
-                beam_token=token, beam_options=beam_options, timings=timings,
+                beam_token=token, beam_options=options, timings=timings,
                 results=[PredictResult(ms=ms, column=t.column, rows_written=0, groups=groups,
                                        timings=timings) for t in targets])
 

@@ -24,7 +24,7 @@ from msleak.io.products import (
 )
 from msleak.ps.delay import FFT_CONVENTION, delay_axis, delay_transform, spectral_window
 
-__all__ = ["transform", "delay_dataset", "load_input", "refuse_existing", "provenance"]
+__all__ = ["transform", "delay_dataset", "load_input", "refuse_existing"]
 
 #: what transform and ps need of a uvcube: variables (coordinates included), attributes
 #: cells empty in some unflagged channels: dropped, or those channels filled with zeros

@@ -66,6 +66,31 @@ class Layout:
     def __len__(self) -> int:
         return len(self.names)
 
+    def select(self, pattern: str | None, what: str) -> "Layout":
+        """The stations whose names match one of the comma-separated shell ``pattern``s
+        (all if None); ``what`` names the array in the error for fewer than two."""
+        if pattern is None:
+            return self
+        keep = [i for i, n in enumerate(self.names)
+                if any(fnmatch.fnmatchcase(n, p.strip()) for p in pattern.split(","))]
+        if len(keep) < 2:
+            raise InputError(f"--stations {pattern!r} selects {len(keep)} station(s) of "
+                             f"{what} ({self.names[0]}..{self.names[-1]}); need at least two")
+        return Layout(names=[self.names[i] for i in keep], positions=self.positions[keep],
+                      diameters=self.diameters[keep], telescope=self.telescope,
+                      fields=[self.fields[i] for i in keep] if self.fields else [])
+
+    def innermost(self, n: int) -> "Layout":
+        """The ``n`` stations nearest the mean position (all if ``n`` >= their number),
+        in their original order."""
+        if n >= len(self):
+            return self
+        dist = np.linalg.norm(self.positions - self.positions.mean(axis=0), axis=1)
+        keep = np.sort(np.argsort(dist, kind="stable")[:n])
+        return Layout(names=[self.names[i] for i in keep], positions=self.positions[keep],
+                      diameters=self.diameters[keep], telescope=self.telescope,
+                      fields=[self.fields[i] for i in keep] if self.fields else [])
+
 
 def lofar_reference_position() -> np.ndarray:
     """ITRF position (m) of the LOFAR array reference (casacore's 'LOFAR' observatory)."""
@@ -187,13 +212,5 @@ def read_layout_file(path: str | Path, pattern: str | None = None) -> Layout:
     else:
         raise InputError(f"{path}: frame must be 'itrf' or 'enu', got {frame!r}")
     diameters = np.array([d if d is not None else default_diameter for d in diam])
-    if pattern:
-        keep = [i for i, n in enumerate(names)
-                if any(fnmatch.fnmatchcase(n, p.strip()) for p in pattern.split(","))]
-        if len(keep) < 2:
-            raise InputError(f"--stations {pattern!r} selects {len(keep)} station(s) of {path}; "
-                             "need at least two")
-        names = [names[i] for i in keep]
-        positions, diameters = positions[keep], diameters[keep]
     return Layout(names=names, positions=positions, diameters=diameters,
-                  telescope=settings["telescope"])
+                  telescope=settings["telescope"]).select(pattern or None, str(path))

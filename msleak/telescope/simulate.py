@@ -8,7 +8,6 @@ whatever the length of the observation (docs/simulate.md).
 
 from __future__ import annotations
 
-import fnmatch
 import logging
 import os
 import shutil
@@ -20,9 +19,18 @@ import numpy as np
 from msleak.errors import InputError
 from msleak.io.columns import check_free_space
 from msleak.io.ms import append_history
+from msleak.io.mwa import write_mwa_tile_pointing
 from msleak.io.phased_array import write_phased_array
 from msleak.io.products import call_record
-from msleak.telescope.layouts import Layout, lofar_hba_core, read_layout_file
+from msleak.telescope.hera_mwa import (
+    HERA_DISH_DIAMETER_M,
+    HERA_TELESCOPE_NAME,
+    MWA_TELESCOPE_NAME,
+    MWA_TILE_SIZE_M,
+    hera_layout,
+    mwa_layout,
+)
+from msleak.telescope.layouts import HBA_FIELD_DIAMETER, Layout, lofar_hba_core, read_layout_file
 from msleak.telescope.ms_create import create_ms_tables
 from msleak.telescope.ska_low import (
     ska_low_from_layout_file,
@@ -31,7 +39,8 @@ from msleak.telescope.ska_low import (
 )
 from msleak.telescope.uvw import antenna_uvw
 
-__all__ = ["FIELD_PRESETS", "FieldPreset", "TELESCOPES", "simulate", "transit_start"]
+__all__ = ["FIELD_PRESETS", "FieldPreset", "TELESCOPES", "simulate", "telescope_layout",
+           "transit_start"]
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +65,14 @@ FIELD_PRESETS = {
 }
 
 #: telescopes msleak simulates, and the field each observes by default
-TELESCOPES = {"lofar": "3c196", "ska-low": "eor0"}
+TELESCOPES = {"lofar": "3c196", "ska-low": "eor0", "hera": "eor0", "mwa": "eor0"}
+#: how each is named in HISTORY
+_LABELS = {"lofar": "LOFAR", "ska-low": "SKA-Low", "hera": "HERA", "mwa": "MWA"}
+#: telescopes whose beam is fixed on the ground (no tracking): a preset observes for this
+#: long (hours) around transit instead of the preset's duration (docs/telescopes.md)
+_FIXED_BEAM_DURATION_H = {"hera": 1.0, "mwa": 1.0}
+#: first channel (Hz) where it is not 150 MHz: HERA's shipped beam file covers 100-145 MHz
+_FREQ_MIN_HZ = {"hera": 135e6}
 
 #: Rows written per chunk (memory: about this x nchan x 4 x 13 bytes)
 _CHUNK_ROWS = 200_000
@@ -95,7 +111,7 @@ def _parse_start(start: str) -> float:
 def simulate(output: str | os.PathLike, *, field: str | None = None,
              phase_centre: tuple[float, float] | None = None, start: str | None = None,
              duration: float | None = None, interval: float = 120.0,
-             freq_min: float = 150e6, nchan: int = 50, chan_width: float = 195312.5,
+             freq_min: float | None = None, nchan: int = 50, chan_width: float = 195312.5,
              stations: str | None = None, layout: str | os.PathLike | None = None,
              autocorrelations: bool = False, telescope: str = "lofar",
              overwrite: bool = False, progress: bool = False) -> Path:
@@ -107,7 +123,7 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
         The new MS; an existing one is refused unless ``overwrite``.
     field : {'ncp', '3c196', 'eor0'}, optional
         Observing preset (phase centre, duration, date); default the telescope's
-        (``'3c196'`` for LOFAR, ``'eor0'`` for SKA-Low) unless ``phase_centre`` is given.
+        (``'3c196'`` for LOFAR, ``'eor0'`` for the others) unless ``phase_centre`` is given.
     phase_centre : (ra_deg, dec_deg), optional
         J2000 phase centre in degrees; overrides the preset's.
     start : str, optional
@@ -116,7 +132,8 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
     duration, interval : float
         Synthesis time (hours) and integration time (seconds).
     freq_min, nchan, chan_width : float, int, float
-        Channel i is centred at ``freq_min + i * chan_width`` (Hz).
+        Channel i is centred at ``freq_min + i * chan_width`` (Hz); ``freq_min`` defaults
+        to 150 MHz, for HERA to 135 MHz (its beam file ends at 145 MHz).
     stations : str, optional
         Station name patterns, comma-separated, e.g. ``"CS00[1-3]HBA*"``.
     layout : path, optional
@@ -124,9 +141,11 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
         ``telescope='ska-low'``, real SKA-Low station positions).
     autocorrelations : bool
         Include autocorrelation rows.
-    telescope : {'lofar', 'ska-low'}
-        LOFAR HBA core (default), or an approximate SKA-Low core of 224 stations of 256
-        elements with the PHASED_ARRAY table EveryBeam reads (docs/ska_low.md).
+    telescope : {'lofar', 'ska-low', 'hera', 'mwa'}
+        LOFAR HBA core (default); an approximate SKA-Low core of 224 stations of 256
+        elements with the PHASED_ARRAY table EveryBeam reads (docs/ska_low.md); HERA's 350
+        dishes or the MWA's 128 tiles (zenith-fixed beams: 1 h around transit by default;
+        docs/telescopes.md).
     progress : bool
         Show a progress bar on stderr.
 
@@ -143,9 +162,12 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
         field = TELESCOPES[telescope]
     preset, ra_deg, dec_deg, name = _pointing(field, phase_centre)
     if duration is None:
-        duration = preset.duration_h if preset is not None else 8.0
+        duration = _FIXED_BEAM_DURATION_H.get(
+            telescope, preset.duration_h if preset is not None else 8.0)
+    if freq_min is None:
+        freq_min = _FREQ_MIN_HZ.get(telescope, 150e6)
     ntime = _time_slots(duration, interval, freq_min, chan_width, nchan)
-    lay = _layout(telescope, layout, stations)
+    lay = telescope_layout(telescope, layout, stations)
     if len(lay) < 2:
         raise InputError("an interferometer needs at least two stations")
     _check_rises(lay, dec_deg, name)
@@ -172,7 +194,9 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
         if telescope == "ska-low":
             axes, offsets = station_element_offsets(lay.positions)
             write_phased_array(path, lay.positions, axes, offsets)
-        what = {"lofar": "LOFAR", "ska-low": "SKA-Low"}[telescope] + \
+        if telescope == "mwa":   # zenith delays, towards the field's DELAY_DIR
+            write_mwa_tile_pointing(path, (t_start, t_start + ntime * interval))
+        what = _LABELS[telescope] + \
             (" (approximate core)" if telescope == "ska-low" and layout is None else "")
         append_history(path, f"simulated {len(lay)} {what} stations, field {name}, {ntime} x "
                              f"{interval:g} s, {int(nchan)} channels of {chan_width:.10g} Hz "
@@ -184,23 +208,23 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
     return path
 
 
-def _layout(telescope: str, layout, stations) -> Layout:
+def telescope_layout(telescope: str, layout=None, stations: str | None = None) -> Layout:
     """The stations of ``telescope``, from ``layout`` if given, selected by ``stations``."""
     if telescope == "lofar":
         return (read_layout_file(layout, stations) if layout is not None
                 else lofar_hba_core(stations or "CS*HBA*"))
-    if layout is not None:
-        return ska_low_from_layout_file(layout, stations)
-    lay = ska_low_layout().to_layout()
-    if stations is None:
-        return lay
-    keep = [i for i, n in enumerate(lay.names)
-            if any(fnmatch.fnmatchcase(n, p.strip()) for p in stations.split(","))]
-    if not keep:
-        raise InputError(f"--stations {stations!r} matches no SKA-Low station "
-                         f"(names S000..S{len(lay) - 1:03d})")
-    return Layout(names=[lay.names[i] for i in keep], positions=lay.positions[keep],
-                  diameters=lay.diameters[keep], telescope=lay.telescope)
+    if telescope == "ska-low":
+        if layout is not None:
+            return ska_low_from_layout_file(layout, stations)
+        return ska_low_layout().to_layout().select(stations, "the SKA-Low core")
+    if layout is not None:   # a file's unstated diameter becomes the dish's or the tile's
+        lay = read_layout_file(layout, stations)
+        name, size = ((HERA_TELESCOPE_NAME, HERA_DISH_DIAMETER_M) if telescope == "hera"
+                      else (MWA_TELESCOPE_NAME, MWA_TILE_SIZE_M))
+        return Layout(names=lay.names, positions=lay.positions, telescope=name,
+                      diameters=np.where(lay.diameters == HBA_FIELD_DIAMETER, size,
+                                         lay.diameters))
+    return hera_layout(stations) if telescope == "hera" else mwa_layout(stations)
 
 
 def _check_rises(lay: Layout, dec_deg: float, name: str) -> None:

@@ -27,7 +27,7 @@ import numpy as np
 
 from msleak.beam.coords import enu_basis
 from msleak.errors import InputError
-from msleak.telescope.layouts import Layout, enu_to_itrf, read_layout_file
+from msleak.telescope.layouts import HBA_FIELD_DIAMETER, Layout, enu_to_itrf, read_layout_file
 
 __all__ = ["SKA_LOW_CENTRE", "SKA_LOW_TELESCOPE_NAME", "STATION_DIAMETER_M",
            "ELEMENTS_PER_STATION", "MIN_ELEMENT_SPACING_M", "MIN_STATION_SEPARATION_M",
@@ -47,9 +47,6 @@ ELEMENTS_PER_STATION = 256
 MIN_ELEMENT_SPACING_M = 1.5
 #: Minimum distance (m) between generated station centres (38 m discs plus a 2 m gap).
 MIN_STATION_SEPARATION_M = 40.0
-
-#: The diameter a layout file gives stations that state none (LOFAR HBA field), m.
-HBA_DEFAULT_DIAMETER_M = 30.75
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
@@ -235,7 +232,7 @@ def ska_low_from_layout_file(path: str | Path, pattern: str | None = None):
         raise InputError(f"{path}: stations lie up to {far / 1e3:.0f} km from the SKA-Low "
                          "site; give ITRF positions or 'reference = X,Y,Z' of the site")
     # the layout-file default diameter is LOFAR's HBA field (30.75 m): use SKA-Low's
-    diameters = np.where(lay.diameters == HBA_DEFAULT_DIAMETER_M, STATION_DIAMETER_M,
+    diameters = np.where(lay.diameters == HBA_FIELD_DIAMETER, STATION_DIAMETER_M,
                          lay.diameters)
     return Layout(names=list(lay.names), positions=lay.positions, diameters=diameters,
                   telescope=SKA_LOW_TELESCOPE_NAME)

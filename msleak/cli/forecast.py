@@ -1,0 +1,68 @@
+"""``msleak forecast``: the same skies through LOFAR, SKA-Low, HERA and the MWA."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from msleak.cli._common import step_invoker
+from msleak.study.forecast import SETUPS, ForecastConfig, run_forecast
+
+
+def _telescopes(ctx, param, value):
+    if value is None:
+        return tuple(SETUPS)
+    names = tuple(v.strip().lower() for v in value.split(",") if v.strip())
+    unknown = [n for n in names if n not in SETUPS]
+    if unknown or not names:
+        raise click.BadParameter(f"{unknown[0] if unknown else value!r} is not a telescope: "
+                                 f"use some of {','.join(SETUPS)}")
+    return names
+
+
+@click.command()
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--telescopes", callback=_telescopes, default=None, metavar="T1,T2,...",
+              help=f"Telescope names to compare, comma-separated [default: {','.join(SETUPS)}].")
+@click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
+              metavar="N", help="Seed of the first sky realisation.")
+@click.option("--seeds", type=click.IntRange(1, None), default=3, show_default=True,
+              metavar="N", help="Sky realisations (seeds SEED, SEED+1, ...), the same through "
+              "every telescope; the table gives their mean +- standard deviation.")
+@click.option("--stations", type=click.IntRange(2, None), default=48, show_default=True,
+              metavar="N", help="Use each array's N stations nearest its centre (the LOFAR "
+              "HBA core has 48 fields).")
+@click.option("--duration", "duration_h", type=float, default=1.0, show_default=True,
+              metavar="HOURS", help="Synthesis time, centred on transit (HERA's and the "
+              "MWA's beams do not track: keep it short).")
+@click.option("--interval", "interval_s", type=float, default=120.0, show_default=True,
+              metavar="SEC", help="Integration time.")
+@click.option("--nchan", type=click.IntRange(8, None), default=50, show_default=True,
+              metavar="N", help="Channels of 195.3125 kHz of the MSs and skies.")
+@click.option("--quick", is_flag=True, help="Test size: 8 stations, 0.2 h at 360 s, 10 "
+              "channels, a 6 deg sky, at most 2 realisations (about 2 min on 2 cores).")
+@click.option("--overwrite", is_flag=True,
+              help="Rerun every step, replacing its outputs (without it an existing OUTDIR "
+              "resumes).")
+@click.pass_context
+def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interval_s, nchan,
+             quick, overwrite):
+    """Leakage forecast: the same sky realisations through LOFAR (3C196), SKA-Low, HERA and
+    the MWA (EoR0) with matched settings, each with its own beam model and the beam at the
+    phase centre removed; OUTDIR/forecast.md, forecast.csv and figures/forecast.png compare
+    the median L_I and the L_I in the EoR window (docs/telescopes.md).
+
+    HERA and the MWA need pip install 'msleak[hera]' and 'msleak[mwa]'.
+    Resumable like msleak paper.
+
+    \b
+    Examples:
+      msleak forecast forecast/ --quick
+      msleak forecast forecast/ --telescopes lofar,ska-low --seeds 5
+    """
+    cfg = ForecastConfig(outdir=Path(outdir), telescopes=telescopes, seed=seed, seeds=seeds,
+                         stations=stations, duration_h=duration_h, interval_s=interval_s,
+                         nchan=nchan, quick=quick)
+    report = run_forecast(cfg, step_invoker(ctx, "forecast"), overwrite=overwrite)
+    click.echo(f"forecast: {report}")

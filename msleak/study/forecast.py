@@ -1,0 +1,261 @@
+"""``msleak forecast``: the same sky realisations through LOFAR, SKA-Low, HERA and the MWA
+with matched settings, and one table and figure comparing their leakage
+(docs/telescopes.md).
+
+Every stage is one msleak command line run (or skipped when up to date) by
+:class:`msleak.study.steps.StepRunner`, as in ``msleak paper``.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from msleak import __version__
+from msleak.constants import SPEED_OF_LIGHT
+from msleak.errors import InputError
+from msleak.io.products import open_product
+from msleak.leakage.fraction import stokes_power
+from msleak.plot.forecast import plot_forecast
+from msleak.study.steps import Step, StepRunner
+from msleak.telescope.hera_mwa import HERA_DISH_DIAMETER_M, MWA_TILE_SIZE_M
+from msleak.telescope.layouts import HBA_FIELD_DIAMETER
+from msleak.telescope.simulate import TELESCOPES, telescope_layout
+from msleak.telescope.ska_low import STATION_DIAMETER_M
+
+__all__ = ["Setup", "SETUPS", "ForecastConfig", "forecast_steps", "run_forecast",
+           "window_leakage"]
+
+log = logging.getLogger(__name__)
+
+
+#: channel width of every MS and sky of the forecast (the study's), Hz
+_CHAN_WIDTH = 195312.5
+
+
+#: the study's uv grid: 16-wavelength cells (a LOFAR HBA field, 30.75 m, at 155 MHz) and
+#: baselines of 30-180 wavelengths, i.e. 1.875 to 11.25 cells
+_STUDY_CELL, _STUDY_UV = 16.0, (30.0, 180.0)
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How one telescope observes in the forecast: its EoR field, beam model, band and
+    aperture (station or dish diameter, m)."""
+
+    field: str
+    beam: str
+    freq_min_hz: float
+    label: str
+    aperture_m: float
+
+    def uv_grid(self, nchan: int) -> tuple[float, tuple[float, float]]:
+        """(cell, (uv_min, uv_max)) in wavelengths: one aperture diameter at the band's
+        centre per cell, and the study's baseline range in those cells."""
+        freq = self.freq_min_hz + 0.5 * (nchan - 1) * _CHAN_WIDTH
+        cell = self.aperture_m * freq / SPEED_OF_LIGHT
+        scale = cell / _STUDY_CELL
+        return cell, (_STUDY_UV[0] * scale, _STUDY_UV[1] * scale)
+
+
+#: LOFAR observes its 3C196 window, the southern arrays EoR0 near their zenith; HERA's
+#: band lies inside its beam file (100-145 MHz), the others start at 150 MHz.
+SETUPS = {
+    "lofar": Setup("3c196", "everybeam", 150e6, "LOFAR HBA", HBA_FIELD_DIAMETER),
+    "ska-low": Setup("eor0", "everybeam", 150e6, "SKA-Low (approx. core)", STATION_DIAMETER_M),
+    "hera": Setup("eor0", "uvbeam", 135e6, "HERA", HERA_DISH_DIAMETER_M),
+    "mwa": Setup("eor0", "hyperbeam", 150e6, "MWA (analytic tile)", MWA_TILE_SIZE_M),
+}
+
+
+@dataclass
+class ForecastConfig:
+    """Parameters of the forecast; ``quick`` shrinks every size for a test run."""
+
+    outdir: Path
+    telescopes: tuple = tuple(TELESCOPES)
+    seed: int = 2018
+    seeds: int = 3
+    stations: int = 48
+    duration_h: float = 1.0
+    interval_s: float = 120.0
+    nchan: int = 50
+    quick: bool = False
+
+    def __post_init__(self):
+        unknown = [t for t in self.telescopes if t not in SETUPS]
+        if unknown:
+            raise InputError(f"unknown telescope {unknown[0]!r}: use {', '.join(SETUPS)}")
+        if self.quick:
+            self.stations, self.duration_h, self.interval_s = 8, 0.2, 360.0
+            self.nchan, self.seeds = 10, min(self.seeds, 2)
+        if self.stations < 2:
+            raise InputError(f"--stations must be at least 2, got {self.stations}")
+
+    @property
+    def realisations(self) -> list[int]:
+        return [self.seed + k for k in range(self.seeds)]
+
+    @property
+    def sky_args(self) -> list:
+        """The study's cube, 50 pixels of 0.3 deg (15 deg); 20 (6 deg) with ``quick``."""
+        return ["--npix", 20, "--fov", 6.0] if self.quick else ["--npix", 50, "--fov", 15.0]
+
+
+def _sky_steps(cfg: ForecastConfig, sky: Path) -> tuple[list[Step], dict]:
+    """One cube per realisation and band: ``{(seed, freq_min): path}``."""
+    steps, cubes = [], {}
+    for freq in sorted({SETUPS[t].freq_min_hz for t in cfg.telescopes}):
+        for seed in cfg.realisations:
+            cube = sky / f"sky_s{seed}_{freq / 1e6:g}MHz.fits"
+            cubes[seed, freq] = cube
+            steps.append(Step(f"sky-s{seed}-{freq / 1e6:g}MHz",
+                              ["sky", cube, "--seed", seed, "--freq-min", freq,
+                               "--nchan", cfg.nchan, "--chan-width", _CHAN_WIDTH,
+                               *cfg.sky_args, "--overwrite"],
+                              outputs=[cube]))
+    return steps, cubes
+
+
+def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
+    """Simulate, one predict and one grid of every realisation, PS, leakage."""
+    setup = SETUPS[tel]
+    tdir = Path(cfg.outdir) / tel
+    ms = tdir / f"{tel}.ms"
+    names = telescope_layout(tel).innermost(cfg.stations).names
+    steps = [Step(f"simulate-{tel}",
+                  ["simulate", ms, "--telescope", tel, "--field", setup.field,
+                   "--duration", cfg.duration_h, "--interval", cfg.interval_s,
+                   "--freq-min", setup.freq_min_hz, "--nchan", cfg.nchan,
+                   "--chan-width", _CHAN_WIDTH,
+                   "--stations", ",".join(names), "--overwrite"], outputs=[ms])]
+    predict = ["predict", ms, "--beam", setup.beam]
+    cell, uv_range = setup.uv_grid(cfg.nchan)
+    grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
+            f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]
+    for seed in cfg.realisations:
+        predict += ["--sky", cubes[seed, setup.freq_min_hz], "--column", f"MODEL_S{seed}"]
+        grid += ["--column", f"MODEL_S{seed}", "-o", tdir / f"grid_s{seed}.h5"]
+    steps += [Step(f"predict-{tel}", predict, after=[f"simulate-{tel}"], outputs=[ms],
+                   inputs=[cubes[s, setup.freq_min_hz] for s in cfg.realisations]),
+              Step(f"grid-{tel}", grid, after=[f"predict-{tel}"],
+                   outputs=[tdir / f"grid_s{s}.h5" for s in cfg.realisations])]
+    for seed in cfg.realisations:
+        grid_h5, delay, ps = (tdir / f"{x}_s{seed}.h5" for x in ("grid", "delay", "ps"))
+        steps += [Step(f"transform-{tel}-s{seed}", ["transform", grid_h5, "-o", delay,
+                                                    "--overwrite"],
+                       inputs=[grid_h5], outputs=[delay]),
+                  Step(f"ps-{tel}-s{seed}", ["ps", delay, "-o", ps, "--overwrite"],
+                       inputs=[delay], outputs=[ps])]
+    ps_files = [tdir / f"ps_s{s}.h5" for s in cfg.realisations]
+    steps.append(Step(f"leakage-{tel}",
+                      ["leakage", *ps_files, "--labels",
+                       ",".join(f"s{s}" for s in cfg.realisations), "--realisations",
+                       ",".join(map(str, cfg.realisations)), "--field-name", setup.label,
+                       "-o", tdir / "leakage", "--no-pdf", "--overwrite"],
+                      inputs=ps_files, outputs=[tdir / "leakage" / "leakage.h5"]))
+    return steps
+
+
+def forecast_steps(cfg: ForecastConfig) -> list[Step]:
+    """Every step of the forecast, in order."""
+    steps, cubes = _sky_steps(cfg, Path(cfg.outdir) / "sky")
+    for tel in cfg.telescopes:
+        steps += _telescope_steps(cfg, tel, cubes)
+    return steps
+
+
+def window_leakage(ps: xr.Dataset) -> float:
+    """100 sqrt(sum P_I / sum P_P) over the cylindrical bins of the EoR window, in percent.
+
+    The window is k_par > ``wedge_slope_horizon`` k_perp (above the horizon wedge); each
+    bin counts with its number of 3D cells.  NaN if the window holds no bin with power.
+    """
+    slope = float(ps.attrs["wedge_slope_horizon"])
+    k_par = ps["k_par"].values[:, None]
+    k_perp = ps["k_perp"].values[None, :]
+    n = ps["counts"].transpose("k_par", "k_perp").values
+    p_i = stokes_power(ps, "power_jy2", "I").transpose("k_par", "k_perp").values
+    p_p = stokes_power(ps, "power_jy2", "P").transpose("k_par", "k_perp").values
+    inside = (k_par > slope * k_perp) & (n > 0) & np.isfinite(p_i) & np.isfinite(p_p)
+    total_p = float(np.sum(n[inside] * p_p[inside]))
+    if not total_p > 0:
+        return float("nan")
+    return 100.0 * np.sqrt(max(float(np.sum(n[inside] * p_i[inside])), 0.0) / total_p)
+
+
+def _summary_row(cfg: ForecastConfig, tel: str) -> dict:
+    """The table row of one telescope: mean +- std over realisations."""
+    tdir = Path(cfg.outdir) / tel
+    result = open_product(tdir / "leakage" / "leakage.h5", "leakage")
+    medians = np.asarray(result["median"].values, dtype=float)
+    pareto = np.asarray(result["pareto_median"].values, dtype=float)
+    window = np.array([window_leakage(open_product(tdir / f"ps_s{s}.h5", "ps"))
+                       for s in cfg.realisations])
+    setup = SETUPS[tel]
+
+    def spread(x):
+        return float(np.nanstd(x, ddof=1)) if np.sum(np.isfinite(x)) > 1 else 0.0
+
+    return {"telescope": tel, "label": setup.label, "field": setup.field.upper(),
+            "beam": setup.beam, "stations": cfg.stations,
+            "band_mhz": f"{setup.freq_min_hz / 1e6:g}-"   # first and last channel centres
+                        f"{(setup.freq_min_hz + (cfg.nchan - 1) * _CHAN_WIDTH) / 1e6:.2f}",
+            "realisations": len(cfg.realisations),
+            "median": float(np.mean(medians)), "median_scatter": spread(medians),
+            "pareto_median": float(np.mean(pareto)), "pareto_scatter": spread(pareto),
+            "window": float(np.nanmean(window)) if np.isfinite(window).any() else float("nan"),
+            "window_scatter": spread(window)}
+
+
+def write_summary(cfg: ForecastConfig, rows: list[dict], log_: list[dict],
+                  seconds: float) -> Path:
+    """forecast.csv, figures/forecast.png and forecast.md; returns forecast.md."""
+    out = Path(cfg.outdir)
+    with (out / "forecast.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    fig = plot_forecast(rows, out / "figures" / "forecast.png")
+    lines = [f"# Leakage forecast (msleak {__version__})", "",
+             f"{len(cfg.realisations)} sky realisations (seeds "
+             f"{cfg.realisations[0]}..{cfg.realisations[-1]}), the {cfg.stations} innermost "
+             f"stations of each array, {cfg.duration_h:g} h centred on transit at "
+             f"{cfg.interval_s:g} s, {cfg.nchan} channels of 195.3125 kHz; the beam at the "
+             f"phase centre removed. L_I = 100 sqrt(P_I / P_P): the median over the 3D "
+             "voxels, then mean +- standard deviation over the realisations; EoR window: "
+             "100 sqrt(sum P_I / sum P_P) over the bins above the horizon wedge.", "",
+             "| telescope | field | beam | band (MHz) | median L_I (%) | Pareto median (%) "
+             "| EoR window L_I (%) |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['label']} | {r['field']} | {r['beam']} | {r['band_mhz']} | "
+                     f"{r['median']:.3g} ± {r['median_scatter']:.2g} | "
+                     f"{r['pareto_median']:.3g} ± {r['pareto_scatter']:.2g} | "
+                     f"{r['window']:.3g} ± {r['window_scatter']:.2g} |")
+    lines += ["", f"![forecast]({fig.relative_to(out)})", "",
+              f"## Commands ({seconds:.0f} s)", "", "```"]
+    lines += [f"{s['command']}{'   # up to date, skipped' if s['skipped'] else ''}"
+              for s in log_]
+    lines += ["```", ""]
+    path = out / "forecast.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def run_forecast(cfg: ForecastConfig, invoke, overwrite: bool = False) -> Path:
+    """Run (or resume) the forecast with ``invoke(args)`` running one msleak command line;
+    ``overwrite`` reruns every step. Returns the path of ``forecast.md``."""
+    out = Path(cfg.outdir)
+    for sub in ("sky", "figures", *cfg.telescopes):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    runner = StepRunner(out, overwrite=overwrite)
+    t0 = time.perf_counter()
+    runner.run_all(forecast_steps(cfg), invoke)
+    rows = [_summary_row(cfg, tel) for tel in cfg.telescopes]
+    return write_summary(cfg, rows, runner.log, time.perf_counter() - t0)

@@ -1,0 +1,97 @@
+"""``msleak forecast``: the EoR-window leakage against a hand computation, and the whole
+forecast at test size through every telescope, its table against its own products."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+import xarray as xr
+from click.testing import CliRunner
+
+from msleak.cli import cli
+from msleak.io.products import open_product
+from msleak.study.forecast import window_leakage
+
+
+def _ps(p_i, p_p, counts, slope):
+    k_par = np.array([0.0, 0.1, 0.2, 0.4])
+    k_perp = np.array([0.01, 0.05, 0.1])
+    power = np.stack([p_i, p_p])
+    return xr.Dataset({"power_jy2": (("stokes", "k_par", "k_perp"), power),
+                       "counts": (("k_par", "k_perp"), counts)},
+                      coords={"stokes": ["I", "P"], "k_par": k_par, "k_perp": k_perp},
+                      attrs={"wedge_slope_horizon": slope})
+
+
+def test_window_leakage_by_hand():
+    rng = np.random.default_rng(3)
+    p_p = rng.uniform(1, 2, (4, 3))
+    p_i = rng.uniform(0, 1e-4, (4, 3))
+    counts = rng.integers(1, 5, (4, 3)).astype(float)
+    counts[3, 0] = 0                       # an empty bin never counts
+    ds = _ps(p_i, p_p, counts, slope=2.0)
+    # above k_par = 2 k_perp: k_perp 0.01 -> k_par 0.1, 0.2 (0.4 is empty);
+    # k_perp 0.05 -> 0.2, 0.4; k_perp 0.1 -> 0.4 (0.2 = 2 x 0.1 is on the line: out)
+    def by_hand(cells):
+        num = sum(counts[c] * p_i[c] for c in cells)
+        return 100 * np.sqrt(num / sum(counts[c] * p_p[c] for c in cells))
+
+    assert window_leakage(ds) == pytest.approx(
+        by_hand([(1, 0), (2, 0), (2, 1), (3, 1), (3, 2)]), rel=1e-12)
+    # steeper: k_par > 0.05, 0.25, 0.5 for the three k_perp
+    assert window_leakage(_ps(p_i, p_p, counts, slope=5.0)) == pytest.approx(
+        by_hand([(1, 0), (2, 0), (3, 1)]), rel=1e-12)
+    assert np.isnan(window_leakage(_ps(p_i, p_p, counts, slope=1e3)))
+
+
+def _read_csv(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_forecast_quick_every_telescope(tmp_path):
+    """The whole forecast at test size through the four telescopes: each table row is the
+    mean and the scatter of its own leakage products, each MS holds the stations nearest
+    its array's centre, and a rerun skips every step and gives the same table."""
+    import casacore.tables as ct
+
+    from msleak.telescope.simulate import telescope_layout
+
+    out = tmp_path / "fc"
+    result = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2"])
+    assert result.exit_code == 0, result.output
+    rows = {r["telescope"]: r for r in _read_csv(out / "forecast.csv")}
+    assert set(rows) == {"lofar", "ska-low", "hera", "mwa"}
+    for tel, row in rows.items():
+        leak = open_product(out / tel / "leakage" / "leakage.h5", "leakage")
+        medians = leak["median"].values
+        assert medians.size == 2
+        assert float(row["median"]) == pytest.approx(medians.mean(), rel=1e-12)
+        assert float(row["median_scatter"]) == pytest.approx(medians.std(ddof=1), rel=1e-9)
+        windows = [window_leakage(open_product(out / tel / f"ps_s{s}.h5", "ps"))
+                   for s in (2018, 2019)]
+        assert float(row["window"]) == pytest.approx(np.mean(windows), rel=1e-12)
+        assert 0 < float(row["median"]) < 100
+        lay = telescope_layout(tel)
+        dist = np.linalg.norm(lay.positions - lay.positions.mean(axis=0), axis=1)
+        nearest = {lay.names[i] for i in np.argsort(dist)[:8]}
+        with ct.table(str(out / tel / f"{tel}.ms" / "ANTENNA"), ack=False) as t:
+            assert set(t.getcol("NAME")) == nearest
+    assert "HERA" in (out / "forecast.md").read_text()
+    assert (out / "figures" / "forecast.png").stat().st_size > 0
+    before = (out / "forecast.csv").read_text()
+    again = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2"])
+    assert again.exit_code == 0, again.output
+    assert (out / "forecast.csv").read_text() == before
+    commands = [line for line in (out / "forecast.md").read_text().splitlines()
+                if line.startswith("msleak ")]
+    assert commands and all(line.endswith("# up to date, skipped") for line in commands)
+
+
+def test_forecast_refuses_unknown_telescope(tmp_path):
+    result = CliRunner().invoke(cli, ["forecast", str(tmp_path / "x"), "--telescopes",
+                                      "lofar,vla"])
+    assert result.exit_code == 2
+    assert "'vla' is not a telescope" in result.output
