@@ -105,7 +105,9 @@ def _expected_jones(beam, geometry, freq):
     za_hat = np.stack([np.cos(za) * np.cos(az), np.cos(za) * np.sin(az), -np.sin(za)], -1)
     data, _ = beam.interp(az_array=az, za_array=za, freq_array=freq, return_basis_vector=False)
     feeds = list(beam.feed_array)
-    data = data[:, [feeds.index("x"), feeds.index("y")]]   # (basis, feed, freq, dir)
+    # rows X, Y = the North-South feed, then the East-West one (both files here: y, x)
+    assert np.isclose(beam.feed_angle[feeds.index("y")], 0.0)
+    data = data[:, [feeds.index("y"), feeds.index("x")]]   # (basis, feed, freq, dir)
     out = np.zeros((freq.size, len(v), 2, 2), complex)
     for i, b in enumerate((north, east)):
         out[..., i] = (data[0] * np.sum(b * az_hat, -1) + data[1] * np.sum(b * za_hat, -1)
@@ -129,7 +131,7 @@ def test_jones_equal_pyuvdata_interpolation(hera_ms, model):
     times = np.array([T0, T0 + 3 * 3600.0])
     got = model.jones(times, FREQ, ra, dec)
     peak = np.abs(got).max()
-    assert 80 < peak < 100                          # the file's units (peak 90.8 at 100 MHz)
+    assert 0.9 < peak < 1.1                         # zenith-normalised (the file peaks at 90.8)
     for s, pos in enumerate(read_antennas(hera_ms).positions):
         for it, t in enumerate(times):
             want = _expected_jones(model.beam, _casacore_sky_basis(ra, dec, t, pos), FREQ)
@@ -169,19 +171,48 @@ def test_stations_see_their_own_horizon_frame(hera_ms, model):
     assert np.abs(alone[1] - alone[0]).max() > 1e-4 * peak
 
 
-def test_x_feed_is_east_at_the_zenith(model):
-    """HERA_NicCST's x feed lies East-West (feed_angle 90 deg): at a station's zenith it
-    sees only the East field, y only the North field (cross terms are the CST model's
-    cross-polarisation, 1e-4 of the main term)."""
+def test_rows_are_north_south_then_east_west_at_the_zenith(model):
+    """HERA_NicCST's y feed lies North-South (feed_angle 0), x East-West (90 deg): row X
+    is y, row Y is x (msleak's IAU order), so at a station's zenith row X sees only the
+    North field and row Y only the East field (cross terms are the CST model's
+    cross-polarisation, 1e-4 of the main term), each with gain ~1 (zenith-normalised)."""
     feeds = list(model.beam.feed_array)
     assert np.isclose(model.beam.feed_angle[feeds.index("x")], np.pi / 2)
     assert np.isclose(model.beam.feed_angle[feeds.index("y")], 0.0)
     pos = model.positions[0]
     ra, dec = _zenith_radec(T0, pos)
     j = model.jones([T0], FREQ, [ra], [dec], stations=[0])[0, 0, :, 0]
-    assert np.all(np.abs(j[:, 0, 0]) < 1e-3 * np.abs(j[:, 0, 1]))   # x: North << East
-    assert np.all(np.abs(j[:, 1, 1]) < 1e-3 * np.abs(j[:, 1, 0]))   # y: East << North
-    assert np.all(np.abs(j[:, 0, 1]) > 10)
+    assert np.all(np.abs(j[:, 0, 1]) < 1e-3 * np.abs(j[:, 0, 0]))   # X: East << North
+    assert np.all(np.abs(j[:, 1, 0]) < 1e-3 * np.abs(j[:, 1, 1]))   # Y: North << East
+    assert np.all(np.abs(j[:, 0, 0]) > 0.9) and np.all(np.abs(j[:, 0, 0]) < 1.1)
+
+
+def test_beam_is_normalised_to_its_zenith_peak(model):
+    """Each file frequency is divided by the amplitude of the zenith component largest at
+    100 MHz times its phase relative to 100 MHz: afterwards that component has amplitude 1
+    and its 100 MHz phase at every frequency, the rest is the file divided by one number
+    per frequency, and the
+    interpolated zenith gain stays ~1 across the band (interpolating the raw file's
+    turning phase would dip to 0.37 at 121 MHz)."""
+    raw = read_beam_file(default_beam_file())
+    za0 = list(raw.axis2_array).index(0.0)
+    zen = raw.data_array[:, :, :, za0, :]
+    b, f, a = np.unravel_index(np.argmax(np.abs(zen[:, :, 0, :])), zen[:, :, 0].shape)
+    ref = zen[b, f, :, a]
+    assert 60 < abs(ref[0]) < 100                   # the file's physical units
+    norm = np.abs(ref) * ref / ref[0] / np.abs(ref / ref[0])
+    np.testing.assert_allclose(model.beam.data_array[b, f, :, za0, a],
+                               ref[0] / abs(ref[0]), rtol=1e-12)
+    np.testing.assert_allclose(model.beam.data_array * norm[None, None, :, None, None],
+                               raw.data_array, rtol=1e-12)
+    pos = model.positions[0]
+    ra, dec = _zenith_radec(T0, pos)
+    band = np.linspace(100e6, 145e6, 10)
+    gain = np.abs(model.jones([T0], band, [ra], [dec], stations=[0])[0, 0, :, 0, 0, 0])
+    assert np.all(np.abs(gain - 1) < 2e-3)
+    raw_zenith, _ = raw.interp(az_array=np.array([0.0]), za_array=np.array([0.0]),
+                               freq_array=np.array([121.3e6]), return_basis_vector=False)
+    assert np.abs(raw_zenith).max() < 0.5 * abs(norm[0])
 
 
 def test_short_dipole_file_gives_the_projected_dipoles(tmp_path, hera_ms):
@@ -201,8 +232,8 @@ def test_short_dipole_file_gives_the_projected_dipoles(tmp_path, hera_ms):
     ra, dec = _field(ra0, dec0, n=5, half_deg=55.0)
     got = beam.jones([T0 + 3600.0], [120e6], ra, dec, stations=[1])[0, 0, 0]
     v, north, east = _casacore_sky_basis(ra, dec, T0 + 3600.0, beam.positions[1])
-    want = np.stack([np.stack([north[:, 0], east[:, 0]], -1),     # x: the East axis
-                     np.stack([north[:, 1], east[:, 1]], -1)], -2)  # y: the North axis
+    want = np.stack([np.stack([north[:, 1], east[:, 1]], -1),     # X = y: the North axis
+                     np.stack([north[:, 0], east[:, 0]], -1)], -2)  # Y = x: the East axis
     want[v[:, 2] < 0] = 0
     assert np.any(v[:, 2] < 0) and np.any(v[:, 2] > 0.5)
     assert np.abs(got - want).max() < 1e-6

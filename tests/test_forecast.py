@@ -46,6 +46,9 @@ def test_window_leakage_by_hand():
     assert np.isnan(window_leakage(_ps(p_i, p_p, counts, slope=1e3)))
 
 
+APERTURE_M = {"lofar": 30.75, "ska-low": 38.0, "hera": 14.0, "mwa": 4.4}
+
+
 def _read_csv(path):
     with open(path) as fh:
         return list(csv.DictReader(fh))
@@ -60,10 +63,12 @@ def test_forecast_quick_every_telescope(tmp_path):
     from msleak.telescope.simulate import telescope_layout
 
     out = tmp_path / "fc"
-    result = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2"])
+    result = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2",
+                                      "--telescopes", "lofar,ska-low,hera,mwa,hera"])
     assert result.exit_code == 0, result.output
     rows = {r["telescope"]: r for r in _read_csv(out / "forecast.csv")}
-    assert set(rows) == {"lofar", "ska-low", "hera", "mwa"}
+    assert list(rows) == ["lofar", "ska-low", "hera", "mwa"]      # the repeat counts once
+    assert len(_read_csv(out / "forecast.csv")) == 4
     for tel, row in rows.items():
         leak = open_product(out / tel / "leakage" / "leakage.h5", "leakage")
         medians = leak["median"].values
@@ -74,6 +79,14 @@ def test_forecast_quick_every_telescope(tmp_path):
                    for s in (2018, 2019)]
         assert float(row["window"]) == pytest.approx(np.mean(windows), rel=1e-12)
         assert 0 < float(row["median"]) < 100
+        # one aperture (30.75, 38, 14, 4.4 m) per uv cell at the band centre, and the
+        # study's 30-180 wavelengths in units of 16-wavelength cells
+        grid = open_product(out / tel / "grid_s2018.h5", "uvcube")
+        centre = grid["freq"].values.mean()
+        cell = APERTURE_M[tel] * centre / 299_792_458.0
+        assert grid.attrs["cell_lambda"] == pytest.approx(cell, rel=1e-5)
+        assert grid.attrs["uv_min_lambda"] == pytest.approx(30 * cell / 16, rel=1e-5)
+        assert grid.attrs["uv_max_lambda"] == pytest.approx(180 * cell / 16, rel=1e-5)
         lay = telescope_layout(tel)
         dist = np.linalg.norm(lay.positions - lay.positions.mean(axis=0), axis=1)
         nearest = {lay.names[i] for i in np.argsort(dist)[:8]}
@@ -82,7 +95,8 @@ def test_forecast_quick_every_telescope(tmp_path):
     assert "HERA" in (out / "forecast.md").read_text()
     assert (out / "figures" / "forecast.png").stat().st_size > 0
     before = (out / "forecast.csv").read_text()
-    again = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2"])
+    again = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2",
+                                     "--telescopes", "lofar,ska-low,hera,mwa"])
     assert again.exit_code == 0, again.output
     assert (out / "forecast.csv").read_text() == before
     commands = [line for line in (out / "forecast.md").read_text().splitlines()
@@ -95,3 +109,24 @@ def test_forecast_refuses_unknown_telescope(tmp_path):
                                       "lofar,vla"])
     assert result.exit_code == 2
     assert "'vla' is not a telescope" in result.output
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--quick", "--interval", "0"], "--duration (0.2 h) and --interval (0.0 s) must be positive"),
+    (["--quick", "--duration", "0.01"], "the duration at least one interval"),
+    (["--quick", "--nchan", "300"], "do not fit HERA's beam file (100-145 MHz)"),
+])
+def test_forecast_refuses_bad_settings_before_any_work(tmp_path, args, message):
+    out = tmp_path / "x"
+    result = CliRunner().invoke(cli, ["forecast", str(out), *args])
+    assert result.exit_code == 2
+    assert message in result.output
+    assert not (out / "sky").exists()
+
+
+def test_quick_keeps_the_settings_given():
+    from msleak.study.forecast import ForecastConfig
+
+    cfg = ForecastConfig(outdir="x", quick=True, nchan=12)
+    assert (cfg.nchan, cfg.stations, cfg.seeds) == (12, 8, 2)
+    assert ForecastConfig(outdir="x").stations == 48

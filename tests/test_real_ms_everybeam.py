@@ -88,7 +88,8 @@ def test_mwa_tile_pointing_and_coefficients(tmp_path, monkeypatch):
             line = one_error_line(_invoke(args))
             assert reason in line, line
             assert ("set MWA_BEAM_FILE to the path of mwa_full_embedded_element_pattern.h5, "
-                    "or use `--beam dipole`") in line
+                    "or use `--beam hyperbeam` (the MWA tile; analytic without any file) or "
+                    "`--beam dipole`") in line
     assert column_names(ms) == before
 
 

@@ -50,9 +50,16 @@ def test_hera_ms_has_pyuvdata_positions(tmp_path):
     assert list(_col(ms, "TELESCOPE_NAME", "OBSERVATION")) == ["HERA"]
     times = np.unique(_col(ms, "TIME"))
     assert times.size == 6 and times[-1] - times[0] == pytest.approx(5 * 600.0)  # 1 h
-    # EoR0 at transit: the hour angle at the middle of the hour is ~0 at HERA's longitude
-    lat = EarthLocation.from_geocentric(*np.mean([ref[n] for n in names], axis=0), unit=u.m)
-    assert lat.lat.deg == pytest.approx(-30.72, abs=0.01)
+    assert _col(ms, "CHAN_FREQ", "SPECTRAL_WINDOW")[0, 0] == 135e6    # inside the beam file
+    # EoR0 (RA 0) at transit mid-way: the local sidereal time there is ~0 h (apparent
+    # against J2000 right ascension: < 0.5 deg apart in 2020)
+    site = EarthLocation.from_geocentric(*np.mean([ref[n] for n in names], axis=0), unit=u.m)
+    assert site.lat.deg == pytest.approx(-30.72, abs=0.01)
+    from astropy.time import Time
+
+    lst = Time(times.mean() / 86400.0, format="mjd", scale="utc").sidereal_time(
+        "apparent", longitude=site.lon).deg
+    assert min(lst, 360 - lst) < 0.5
 
 
 def test_mwa_ms_has_pyuvsim_layout(tmp_path):
@@ -83,6 +90,14 @@ def test_mwa_ms_has_pyuvsim_layout(tmp_path):
     interval = _col(ms, "INTERVAL", "MWA_TILE_POINTING")[0]
     assert interval[0] == pytest.approx(times.min() - 300.0)
     assert interval[1] == pytest.approx(times.max() + 300.0)
+    # the direction of zenith delays is the zenith mid-way: EoR0 (RA 0, Dec -27) at
+    # transit is 0.3 deg from the zenith of the MWA (latitude -26.70)
+    ra, dec = _col(ms, "DIRECTION", "MWA_TILE_POINTING")[0]
+    zenith_to_eor0 = np.degrees(np.arccos(
+        np.sin(dec) * np.sin(np.radians(-27.0)) + np.cos(dec) * np.cos(np.radians(-27.0))
+        * np.cos(ra)))
+    assert 0.05 < zenith_to_eor0 < 0.8
+    assert np.degrees(dec) == pytest.approx(-26.70, abs=0.2)
 
 
 @pytest.mark.parametrize("telescope,stations", [
@@ -153,3 +168,20 @@ def test_symmetric_dipoles_leak_quadratically(tmp_path):
     assert leak[0] < 1e-9
     np.testing.assert_allclose(leak[1:], expected[1:], rtol=1e-3)
     np.testing.assert_allclose(leak[1:3] / theta[1:3] ** 2, 0.5, rtol=1e-3)
+
+
+def test_everybeam_on_hera_and_mwa_names_their_models(tmp_path, monkeypatch):
+    """EveryBeam has no HERA model and needs a downloaded file for the MWA: the one-line
+    error names the msleak model that does work."""
+    from click.testing import CliRunner
+
+    from msleak.cli import cli
+
+    monkeypatch.delenv("MWA_BEAM_FILE", raising=False)
+    for tel, model in (("hera", "--beam uvbeam"), ("mwa", "--beam hyperbeam")):
+        ms = simulate(tmp_path / f"{tel}.ms", telescope=tel, stations="HH1[0-2],Tile01[1-3]",
+                      nchan=2, duration=0.2, interval=360.0)
+        result = CliRunner().invoke(cli, ["beam", str(ms), "-o", str(tmp_path / "b.png")])
+        assert result.exit_code == 2, result.output
+        line = [x for x in result.stderr.splitlines() if x.strip()]
+        assert len(line) == 1 and line[0].startswith("msleak: error:") and model in line[0]

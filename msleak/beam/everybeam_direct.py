@@ -62,55 +62,70 @@ def load_everybeam_telescope(ms: str | os.PathLike, element_model: str = "defaul
     """
     name = read_telescope_name(ms)
     kind = everybeam_telescope(name)
+    remedy = _remedy(ms)
     if kind is None:
         known = ", ".join(sorted(list(EVERYBEAM_TELESCOPES) + ["OSKAR*"]))
         raise BeamUnavailable(f"{ms}: EveryBeam has no beam model for TELESCOPE_NAME {name!r} "
-                              f"(its Python bindings know {known})")
+                              f"(its Python bindings know {known})", remedy=remedy)
     coeff_path = ""
     if kind == "LOFAR" and not has_subtable(ms, "LOFAR_ANTENNA_FIELD"):
         raise BeamUnavailable(f"{ms}: no LOFAR_ANTENNA_FIELD table, so no LOFAR beam")
     if kind == "MWA":
         if not has_subtable(ms, "MWA_TILE_POINTING"):
             raise BeamUnavailable(f"{ms}: no MWA_TILE_POINTING table (the tiles' dipole "
-                                  "delays), which EveryBeam's MWA beam needs")
-        coeff_path = _mwa_coefficients(ms)
+                                  "delays), which EveryBeam's MWA beam needs", remedy=remedy)
+        coeff_path = _mwa_coefficients(ms, remedy)
     eb = import_everybeam()
     return _everybeam_call(ms, eb.load_telescope, str(ms), use_differential_beam=False,
                            element_response_model=element_model, coeff_path=coeff_path)
+
+
+#: the msleak beam models of telescopes EveryBeam lacks or needs a downloaded file for
+_OTHER_MODELS = {
+    "HERA": "use `--beam uvbeam` (HERA's dish beam from a UVBeam file) or `--beam dipole`",
+    "MWA": "use `--beam hyperbeam` (the MWA tile; analytic without any file) or "
+           "`--beam dipole`",
+}
+
+def _remedy(ms) -> str:
+    """What to use instead of EveryBeam for the telescope of ``ms``."""
+    return _OTHER_MODELS.get(read_telescope_name(ms).upper(),
+                             "use `--beam dipole` (analytic beam)")
 
 
 #: The fix of the environment an MWA beam may need.
 _MWA_SETTING = f"set {MWA_BEAM_FILE_VARIABLE} to the path of {MWA_BEAM_FILE_NAME}"
 
 
-def _mwa_coefficients(ms) -> str:
+def _mwa_coefficients(ms, remedy: str) -> str:
     """The MWA FEE coefficients file named by MWA_BEAM_FILE, checked to be an HDF5 file."""
     path = os.environ.get(MWA_BEAM_FILE_VARIABLE, "")
     if not path:
         raise BeamUnavailable(f"{ms}: EveryBeam's MWA beam needs the MWA FEE coefficients "
                               f"file {MWA_BEAM_FILE_NAME} and {MWA_BEAM_FILE_VARIABLE} is not "
-                              "set", setting=_MWA_SETTING)
+                              "set", setting=_MWA_SETTING, remedy=remedy)
     try:
         with open(path, "rb") as f:
             signature = f.read(8)
     except OSError as err:
         raise BeamUnavailable(f"{MWA_BEAM_FILE_VARIABLE}={path}: cannot read it "
-                              f"({err.strerror})", setting=_MWA_SETTING) from err
+                              f"({err.strerror})", setting=_MWA_SETTING, remedy=remedy) from err
     if signature != b"\x89HDF\r\n\x1a\n":
         raise BeamUnavailable(f"{MWA_BEAM_FILE_VARIABLE}={path}: not an HDF5 file",
-                              setting=_MWA_SETTING)
+                              setting=_MWA_SETTING, remedy=remedy)
     return path
 
 
 def _everybeam_call(ms, function, *args, setting: str = "", **kwargs):
     """``function(*args, **kwargs)`` of EveryBeam with its errors as BeamUnavailable
-    (naming ``setting``, the environment fix that may cure them, if any)."""
+    (naming ``setting``, the environment fix that may cure them, if any, and the msleak
+    model that works for the telescope)."""
     try:
         return function(*args, **kwargs)
     except (RuntimeError, ValueError) as err:
         text = " ".join(str(err).split())[:160]
         raise BeamUnavailable(f"{ms}: EveryBeam cannot make a beam for this MS ({text})",
-                              setting=setting) from err
+                              setting=setting, remedy=_remedy(ms)) from err
 
 
 class EveryBeamDirect(BeamModel):

@@ -100,6 +100,37 @@ def response_vectors(beam, local: np.ndarray, feed_order) -> np.ndarray:
     return g.transpose(1, 0, 2, 3)
 
 
+def feed_rows(beam) -> list[int]:
+    """The file's feed indices in msleak's row order: X, the feed closer to North-South
+    (``feed_angle`` 0 modulo pi), then Y (the IAU order msleak's Stokes use)."""
+    angle = np.mod(np.asarray(beam.feed_angle, dtype=float), np.pi)
+    ns = int(np.argmin(np.minimum(angle, np.pi - angle)))
+    return [ns, 1 - ns]
+
+
+def zenith_normalised(beam):
+    """A copy of ``beam`` divided, at each file frequency, by one complex number: the
+    amplitude of the zenith component (basis vector, feed, azimuth) largest at the first
+    frequency, times its phase relative to the first frequency.
+
+    A beam file keeps physical units and the feed's electrical phase (HERA's file peaks at
+    90.8 and its zenith phase moves by about 180 deg, modulo 360, from one file frequency
+    to the next). Both are the same for every direction and every station, so they cancel
+    in every visibility J_p B J_q^H, but interpolating the raw complex values between frequencies 15 MHz apart
+    would shrink the amplitude (to 0.37 of the zenith gain at 121 MHz for HERA's file).
+    Removed, the zenith gain is 1 at every frequency, the phase at the first frequency is
+    kept, and the interpolation follows the beam's shape only (docs/hera.md).
+    """
+    out = beam.copy()
+    zenith = int(np.argmin(np.abs(np.asarray(beam.axis2_array, dtype=float))))
+    at_zenith = beam.data_array[:, :, :, zenith, :]               # (basis, feed, freq, az)
+    ref = np.unravel_index(np.argmax(np.abs(at_zenith[:, :, 0, :])), at_zenith[:, :, 0].shape)
+    ref_value = at_zenith[ref[0], ref[1], :, ref[2]]              # (freq,) complex
+    norm = np.abs(ref_value) * np.exp(1j * np.angle(ref_value / ref_value[0]))
+    out.data_array = beam.data_array / norm[None, None, :, None, None]
+    return out
+
+
 def _rotations(step: float) -> np.ndarray:
     """(3, 3, 3): rotations by ``step`` about the local East, North and Up axes."""
     c, s = np.cos(step), np.sin(step)
@@ -134,12 +165,11 @@ class UVBeamModel(BeamModel):
         super().__init__(len(positions), phase_centre, station_names, used_stations)
         used = self.used_stations
         self._check_positions(positions)
-        self.beam = beam
+        self.beam = zenith_normalised(beam)
         self.positions = positions
         self.file_name = name
         self.file_freq = np.asarray(beam.freq_array, dtype=float).reshape(-1)
-        feeds = [str(f).lower() for f in beam.feed_array]
-        self._feed_order = [feeds.index("x"), feeds.index("y")]
+        self._feed_order = feed_rows(beam)
         self._centre = positions[used].mean(axis=0)
         centre_axes = enu_basis(self._centre)
         self._axes = np.zeros((len(positions), 3, 3))

@@ -83,7 +83,7 @@ def beam_model_options(func):
         "--beam-file", "beam_file", type=click.Path(exists=True, dir_okay=False),
         default=None, metavar="FILE",
         help="With --beam uvbeam: a UVBeam-readable E-field beam (beamfits, ...) [default: "
-             "pyuvsim's HERA beam, 100-200 MHz]; with --beam hyperbeam --element-model fee: "
+             "pyuvsim's HERA beam, 100-145 MHz]; with --beam hyperbeam --element-model fee: "
              "the MWA FEE HDF5 file [default: $MWA_BEAM_FILE].")(func)
     return click.option(
         "--element-model", "element_model", default=None, metavar="NAME",

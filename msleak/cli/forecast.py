@@ -27,21 +27,22 @@ def _telescopes(ctx, param, value):
               help=f"Telescope names to compare, comma-separated [default: {','.join(SETUPS)}].")
 @click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
               metavar="N", help="Seed of the first sky realisation.")
-@click.option("--seeds", type=click.IntRange(1, None), default=3, show_default=True,
-              metavar="N", help="Sky realisations (seeds SEED, SEED+1, ...), the same through "
-              "every telescope; the table gives their mean +- standard deviation.")
-@click.option("--stations", type=click.IntRange(2, None), default=48, show_default=True,
-              metavar="N", help="Use each array's N stations nearest its centre (the LOFAR "
-              "HBA core has 48 fields).")
-@click.option("--duration", "duration_h", type=float, default=1.0, show_default=True,
-              metavar="HOURS", help="Synthesis time, centred on transit (HERA's and the "
-              "MWA's beams do not track: keep it short).")
-@click.option("--interval", "interval_s", type=float, default=120.0, show_default=True,
-              metavar="SEC", help="Integration time.")
-@click.option("--nchan", type=click.IntRange(8, None), default=50, show_default=True,
-              metavar="N", help="Channels of 195.3125 kHz of the MSs and skies.")
-@click.option("--quick", is_flag=True, help="Test size: 8 stations, 0.2 h at 360 s, 10 "
-              "channels, a 6 deg sky, at most 2 realisations (about 2 min on 2 cores).")
+@click.option("--seeds", type=click.IntRange(1, None), default=None, metavar="N",
+              help="Sky realisations (seeds SEED, SEED+1, ...), the same through every "
+              "telescope; the table gives their mean +- standard deviation [3; --quick: 2].")
+@click.option("--stations", type=click.IntRange(2, None), default=None, metavar="N",
+              help="Use each array's N stations nearest its centre (the LOFAR HBA core has "
+              "48 fields) [48; --quick: 8].")
+@click.option("--duration", "duration_h", type=float, default=None, metavar="HOURS",
+              help="Synthesis time, centred on transit (HERA's and the MWA's beams do not "
+              "track: keep it short) [1; --quick: 0.2].")
+@click.option("--interval", "interval_s", type=float, default=None, metavar="SEC",
+              help="Integration time [120; --quick: 360].")
+@click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
+              help="Channels of 195.3125 kHz of the MSs and skies [50; --quick: 10].")
+@click.option("--quick", is_flag=True, help="Test size for every setting not given: 8 "
+              "stations, 0.2 h at 360 s, 10 channels, a 6 deg sky, 2 realisations (about 2 "
+              "min on 2 cores).")
 @click.option("--overwrite", is_flag=True,
               help="Rerun every step, replacing its outputs (without it an existing OUTDIR "
               "resumes).")

@@ -77,6 +77,9 @@ def read_beam_file(path: str | os.PathLike):
     if sorted(feeds) != ["x", "y"]:
         raise InputError(f"{path}: feeds {', '.join(feeds)}; msleak needs the feeds x and y: "
                          f"{_REMEDY}")
+    if getattr(beam, "feed_angle", None) is None:
+        raise InputError(f"{path}: its feeds have no orientation (feed_angle); msleak needs "
+                         f"it to tell the North-South feed from the East-West one: {_REMEDY}")
     basis = beam.basis_vector_array
     if (beam.Naxes_vec != 2 or basis is None or np.any(basis[0, 1] != 0)
             or np.any(basis[1, 0] != 0)):

@@ -46,57 +46,80 @@ _STUDY_CELL, _STUDY_UV = 16.0, (30.0, 180.0)
 
 @dataclass(frozen=True)
 class Setup:
-    """How one telescope observes in the forecast: its EoR field, beam model, band and
-    aperture (station or dish diameter, m)."""
+    """How one telescope observes in the forecast: its EoR field, beam model, band (from
+    ``start_hz``, or ending at ``band_top_hz`` for a beam that stops there) and aperture
+    (station or dish diameter, m)."""
 
     field: str
     beam: str
-    freq_min_hz: float
     label: str
     aperture_m: float
+    start_hz: float = 150e6
+    band_top_hz: float | None = None
+
+    def freq_min(self, nchan: int) -> float:
+        """First channel centre (Hz) of ``nchan`` channels."""
+        if self.band_top_hz is None:
+            return self.start_hz
+        return min(self.start_hz, self.band_top_hz - (nchan - 1) * _CHAN_WIDTH)
 
     def uv_grid(self, nchan: int) -> tuple[float, tuple[float, float]]:
         """(cell, (uv_min, uv_max)) in wavelengths: one aperture diameter at the band's
         centre per cell, and the study's baseline range in those cells."""
-        freq = self.freq_min_hz + 0.5 * (nchan - 1) * _CHAN_WIDTH
+        freq = self.freq_min(nchan) + 0.5 * (nchan - 1) * _CHAN_WIDTH
         cell = self.aperture_m * freq / SPEED_OF_LIGHT
         scale = cell / _STUDY_CELL
         return cell, (_STUDY_UV[0] * scale, _STUDY_UV[1] * scale)
 
 
 #: LOFAR observes its 3C196 window, the southern arrays EoR0 near their zenith; HERA's
-#: band lies inside its beam file (100-145 MHz), the others start at 150 MHz.
+#: band starts at 135 MHz, earlier if needed to end inside its beam file (100-145 MHz),
+#: the others start at 150 MHz.
 SETUPS = {
-    "lofar": Setup("3c196", "everybeam", 150e6, "LOFAR HBA", HBA_FIELD_DIAMETER),
-    "ska-low": Setup("eor0", "everybeam", 150e6, "SKA-Low (approx. core)", STATION_DIAMETER_M),
-    "hera": Setup("eor0", "uvbeam", 135e6, "HERA", HERA_DISH_DIAMETER_M),
-    "mwa": Setup("eor0", "hyperbeam", 150e6, "MWA (analytic tile)", MWA_TILE_SIZE_M),
+    "lofar": Setup("3c196", "everybeam", "LOFAR HBA", HBA_FIELD_DIAMETER),
+    "ska-low": Setup("eor0", "everybeam", "SKA-Low (approx. core)", STATION_DIAMETER_M),
+    "hera": Setup("eor0", "uvbeam", "HERA", HERA_DISH_DIAMETER_M, 135e6, 145e6),
+    "mwa": Setup("eor0", "hyperbeam", "MWA (analytic tile)", MWA_TILE_SIZE_M),
 }
+
+#: the sizes of ``--quick``, used for every setting the user leaves unset
+_QUICK = {"stations": 8, "duration_h": 0.2, "interval_s": 360.0, "nchan": 10, "seeds": 2}
+_FULL = {"stations": 48, "duration_h": 1.0, "interval_s": 120.0, "nchan": 50, "seeds": 3}
 
 
 @dataclass
 class ForecastConfig:
-    """Parameters of the forecast; ``quick`` shrinks every size for a test run."""
+    """Parameters of the forecast; None takes the default, or ``quick``'s test size."""
 
     outdir: Path
     telescopes: tuple = tuple(TELESCOPES)
     seed: int = 2018
-    seeds: int = 3
-    stations: int = 48
-    duration_h: float = 1.0
-    interval_s: float = 120.0
-    nchan: int = 50
+    seeds: int | None = None
+    stations: int | None = None
+    duration_h: float | None = None
+    interval_s: float | None = None
+    nchan: int | None = None
     quick: bool = False
 
     def __post_init__(self):
+        self.telescopes = tuple(dict.fromkeys(self.telescopes))
         unknown = [t for t in self.telescopes if t not in SETUPS]
-        if unknown:
-            raise InputError(f"unknown telescope {unknown[0]!r}: use {', '.join(SETUPS)}")
-        if self.quick:
-            self.stations, self.duration_h, self.interval_s = 8, 0.2, 360.0
-            self.nchan, self.seeds = 10, min(self.seeds, 2)
-        if self.stations < 2:
-            raise InputError(f"--stations must be at least 2, got {self.stations}")
+        if unknown or not self.telescopes:
+            raise InputError(f"unknown telescope {unknown[0] if unknown else ''!r}: use "
+                             f"{', '.join(SETUPS)}")
+        for key, value in (_QUICK if self.quick else _FULL).items():
+            if getattr(self, key) is None:
+                setattr(self, key, value)
+        if self.stations < 2 or self.seeds < 1 or self.nchan < 8:
+            raise InputError("--stations must be at least 2, --seeds 1 and --nchan 8")
+        if not (self.duration_h > 0 and self.interval_s > 0
+                and self.duration_h * 3600 >= self.interval_s):
+            raise InputError(f"--duration ({self.duration_h} h) and --interval "
+                             f"({self.interval_s} s) must be positive, the duration at least "
+                             "one interval")
+        if "hera" in self.telescopes and SETUPS["hera"].freq_min(self.nchan) < 100e6:
+            raise InputError(f"--nchan {self.nchan} channels of {_CHAN_WIDTH / 1e3:g} kHz do "
+                             "not fit HERA's beam file (100-145 MHz): use at most 231")
 
     @property
     def realisations(self) -> list[int]:
@@ -111,7 +134,7 @@ class ForecastConfig:
 def _sky_steps(cfg: ForecastConfig, sky: Path) -> tuple[list[Step], dict]:
     """One cube per realisation and band: ``{(seed, freq_min): path}``."""
     steps, cubes = [], {}
-    for freq in sorted({SETUPS[t].freq_min_hz for t in cfg.telescopes}):
+    for freq in sorted({SETUPS[t].freq_min(cfg.nchan) for t in cfg.telescopes}):
         for seed in cfg.realisations:
             cube = sky / f"sky_s{seed}_{freq / 1e6:g}MHz.fits"
             cubes[seed, freq] = cube
@@ -132,7 +155,7 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
     steps = [Step(f"simulate-{tel}",
                   ["simulate", ms, "--telescope", tel, "--field", setup.field,
                    "--duration", cfg.duration_h, "--interval", cfg.interval_s,
-                   "--freq-min", setup.freq_min_hz, "--nchan", cfg.nchan,
+                   "--freq-min", setup.freq_min(cfg.nchan), "--nchan", cfg.nchan,
                    "--chan-width", _CHAN_WIDTH,
                    "--stations", ",".join(names), "--overwrite"], outputs=[ms])]
     predict = ["predict", ms, "--beam", setup.beam]
@@ -140,10 +163,11 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
     grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
             f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]
     for seed in cfg.realisations:
-        predict += ["--sky", cubes[seed, setup.freq_min_hz], "--column", f"MODEL_S{seed}"]
+        predict += ["--sky", cubes[seed, setup.freq_min(cfg.nchan)], "--column",
+                    f"MODEL_S{seed}"]
         grid += ["--column", f"MODEL_S{seed}", "-o", tdir / f"grid_s{seed}.h5"]
     steps += [Step(f"predict-{tel}", predict, after=[f"simulate-{tel}"], outputs=[ms],
-                   inputs=[cubes[s, setup.freq_min_hz] for s in cfg.realisations]),
+                   inputs=[cubes[s, setup.freq_min(cfg.nchan)] for s in cfg.realisations]),
               Step(f"grid-{tel}", grid, after=[f"predict-{tel}"],
                    outputs=[tdir / f"grid_s{s}.h5" for s in cfg.realisations])]
     for seed in cfg.realisations:
@@ -205,8 +229,8 @@ def _summary_row(cfg: ForecastConfig, tel: str) -> dict:
 
     return {"telescope": tel, "label": setup.label, "field": setup.field.upper(),
             "beam": setup.beam, "stations": cfg.stations,
-            "band_mhz": f"{setup.freq_min_hz / 1e6:g}-"   # first and last channel centres
-                        f"{(setup.freq_min_hz + (cfg.nchan - 1) * _CHAN_WIDTH) / 1e6:.2f}",
+            "band_mhz": f"{setup.freq_min(cfg.nchan) / 1e6:g}-"   # first and last centres
+                        f"{(setup.freq_min(cfg.nchan) + (cfg.nchan - 1) * _CHAN_WIDTH) / 1e6:.2f}",
             "realisations": len(cfg.realisations),
             "median": float(np.mean(medians)), "median_scatter": spread(medians),
             "pareto_median": float(np.mean(pareto)), "pareto_scatter": spread(pareto),

@@ -1,6 +1,6 @@
 """HERA and MWA layouts, from the files pyuvdata and pyuvsim ship.
 
-* HERA: pyuvdata's HERA antenna file and site, 350 antennas (HH0..HH349) of 14 m dishes,
+* HERA: pyuvdata's HERA antenna file and site, 350 antennas (HH0-HH319 in the core, HA and HB outriggers up to HB349) of 14 m dishes,
   fixed and pointing at the zenith (TELESCOPE_NAME ``HERA``).
 * MWA: pyuvsim's 128-tile (Phase I) layout, East-North-Up offsets about pyuvsim's MWA
   site, tiles of 4 x 4 dipoles 1.1 m apart (DISH_DIAMETER 4.4 m, TELESCOPE_NAME ``MWA``).

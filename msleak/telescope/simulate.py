@@ -158,14 +158,10 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
     path = Path(output)
     if telescope not in TELESCOPES:
         raise InputError(f"unknown telescope {telescope!r}: use one of {', '.join(TELESCOPES)}")
-    if field is None and phase_centre is None:
-        field = TELESCOPES[telescope]
-    preset, ra_deg, dec_deg, name = _pointing(field, phase_centre)
-    if duration is None:
-        duration = _FIXED_BEAM_DURATION_H.get(
-            telescope, preset.duration_h if preset is not None else 8.0)
-    if freq_min is None:
-        freq_min = _FREQ_MIN_HZ.get(telescope, 150e6)
+    preset, ra_deg, dec_deg, name = _pointing(
+        TELESCOPES[telescope] if field is None and phase_centre is None else field,
+        phase_centre)
+    duration, freq_min = _telescope_defaults(telescope, preset, duration, freq_min)
     ntime = _time_slots(duration, interval, freq_min, chan_width, nchan)
     lay = telescope_layout(telescope, layout, stations)
     if len(lay) < 2:
@@ -191,11 +187,7 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
                          time_range=(t_start, t_start + ntime * interval), nrows=nrows)
         _fill_main(path, times, interval, a1, a2, lay.positions, ra, dec, int(nchan),
                    _CHUNK_ROWS, progress)
-        if telescope == "ska-low":
-            axes, offsets = station_element_offsets(lay.positions)
-            write_phased_array(path, lay.positions, axes, offsets)
-        if telescope == "mwa":   # zenith delays, towards the field's DELAY_DIR
-            write_mwa_tile_pointing(path, (t_start, t_start + ntime * interval))
+        _write_beam_tables(path, telescope, lay, (t_start, t_start + ntime * interval))
         what = _LABELS[telescope] + \
             (" (approximate core)" if telescope == "ska-low" and layout is None else "")
         append_history(path, f"simulated {len(lay)} {what} stations, field {name}, {ntime} x "
@@ -206,6 +198,41 @@ def simulate(output: str | os.PathLike, *, field: str | None = None,
         log.error("simulate interrupted; %s is incomplete: rerun with --overwrite", path)
         raise
     return path
+
+
+def _telescope_defaults(telescope: str, preset, duration, freq_min) -> tuple[float, float]:
+    """``duration`` (h) and ``freq_min`` (Hz), or the telescope's and the preset's."""
+    if duration is None:
+        duration = _FIXED_BEAM_DURATION_H.get(
+            telescope, preset.duration_h if preset is not None else 8.0)
+    return duration, _FREQ_MIN_HZ.get(telescope, 150e6) if freq_min is None else freq_min
+
+
+def _write_beam_tables(path: Path, telescope: str, lay: Layout, time_range) -> None:
+    """What the beam model of ``telescope`` reads besides the standard subtables: SKA-Low's
+    PHASED_ARRAY, the MWA's MWA_TILE_POINTING (zenith delays, pointing at the zenith
+    mid-way through the observation). LOFAR's tables come with the MS."""
+    if telescope == "ska-low":
+        axes, offsets = station_element_offsets(lay.positions)
+        write_phased_array(path, lay.positions, axes, offsets)
+    elif telescope == "mwa":
+        mid = 0.5 * (time_range[0] + time_range[1])
+        write_mwa_tile_pointing(path, time_range,
+                                direction=_zenith_j2000(lay.positions.mean(axis=0), mid))
+
+
+def _zenith_j2000(position_itrf, time_mjd_s: float) -> tuple[float, float]:
+    """J2000 (ra, dec), rad, of the zenith at ``position_itrf`` (m) at UTC ``time_mjd_s``
+    (astropy: metadata only, and casacore's measures keep caches that later conversions
+    would depend on)."""
+    import astropy.units as u
+    from astropy.coordinates import FK5, AltAz, EarthLocation, SkyCoord
+    from astropy.time import Time
+
+    site = EarthLocation.from_geocentric(*position_itrf, unit=u.m)
+    frame = AltAz(obstime=Time(time_mjd_s / 86400.0, format="mjd", scale="utc"), location=site)
+    z = SkyCoord(alt=90 * u.deg, az=0 * u.deg, frame=frame).transform_to(FK5(equinox="J2000"))
+    return float(z.ra.rad), float(z.dec.rad)
 
 
 def telescope_layout(telescope: str, layout=None, stations: str | None = None) -> Layout:
