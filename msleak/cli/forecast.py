@@ -41,8 +41,8 @@ def _telescopes(ctx, param, value):
 @click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
               help="Channels of 195.3125 kHz of the MSs and skies [50; --quick: 10].")
 @click.option("--quick", is_flag=True, help="Test size for every setting not given: 8 "
-              "stations, 0.2 h at 360 s, 10 channels, a 6 deg sky, 2 realisations (about 2 "
-              "min on 2 cores).")
+              "stations, 0.2 h at 360 s, 10 channels, a 6 deg sky, 2 realisations (30 s on "
+              "2 cores).")
 @click.option("--overwrite", is_flag=True,
               help="Rerun every step, replacing its outputs (without it an existing OUTDIR "
               "resumes).")
