@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from msleak.cli import cli
 from msleak.io.products import open_product
-from msleak.study.forecast import window_leakage
+from msleak.leakage.fraction import window_leakage
 
 
 def _ps(p_i, p_p, counts, slope):

@@ -24,6 +24,7 @@ __all__ = [
     "leakage_voxels",
     "LeakageVoxels",
     "mask_summary",
+    "window_leakage",
 ]
 
 log = logging.getLogger(__name__)
@@ -242,3 +243,22 @@ def _coord(ds: xr.Dataset, names: tuple[str, ...], dim: str, source: str) -> np.
         if n in ds.variables and ds[n].dims == (dim,):
             return np.asarray(ds[n].values, dtype=float)
     raise InputError(f"{source}: lacks {' or '.join(names)} along {dim!r}")
+
+
+def window_leakage(ps: xr.Dataset) -> float:
+    """100 sqrt(sum P_I / sum P_P) over the cylindrical bins of the EoR window, in percent.
+
+    The window is k_par > ``wedge_slope_horizon`` k_perp (above the horizon wedge); each
+    bin counts with its number of 3D cells.  NaN if the window holds no bin with power.
+    """
+    slope = float(ps.attrs["wedge_slope_horizon"])
+    k_par = ps["k_par"].values[:, None]
+    k_perp = ps["k_perp"].values[None, :]
+    n = ps["counts"].transpose("k_par", "k_perp").values
+    p_i = stokes_power(ps, "power_jy2", "I").transpose("k_par", "k_perp").values
+    p_p = stokes_power(ps, "power_jy2", "P").transpose("k_par", "k_perp").values
+    inside = (k_par > slope * k_perp) & (n > 0) & np.isfinite(p_i) & np.isfinite(p_p)
+    total_p = float(np.sum(n[inside] * p_p[inside]))
+    if not total_p > 0:
+        return float("nan")
+    return 100.0 * np.sqrt(max(float(np.sum(n[inside] * p_i[inside])), 0.0) / total_p)

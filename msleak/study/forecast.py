@@ -15,13 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import xarray as xr
 
 from msleak import __version__
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 from msleak.io.products import open_product
-from msleak.leakage.fraction import stokes_power
+from msleak.leakage.fraction import window_leakage
 from msleak.plot.forecast import plot_forecast
 from msleak.study.steps import Step, StepRunner
 from msleak.telescope.hera_mwa import HERA_DISH_DIAMETER_M, MWA_TILE_SIZE_M
@@ -29,8 +28,7 @@ from msleak.telescope.layouts import HBA_FIELD_DIAMETER
 from msleak.telescope.simulate import TELESCOPES, telescope_layout
 from msleak.telescope.ska_low import STATION_DIAMETER_M
 
-__all__ = ["Setup", "SETUPS", "ForecastConfig", "forecast_steps", "run_forecast",
-           "window_leakage"]
+__all__ = ["Setup", "SETUPS", "ForecastConfig", "forecast_steps", "run_forecast"]
 
 log = logging.getLogger(__name__)
 
@@ -193,25 +191,6 @@ def forecast_steps(cfg: ForecastConfig) -> list[Step]:
     for tel in cfg.telescopes:
         steps += _telescope_steps(cfg, tel, cubes)
     return steps
-
-
-def window_leakage(ps: xr.Dataset) -> float:
-    """100 sqrt(sum P_I / sum P_P) over the cylindrical bins of the EoR window, in percent.
-
-    The window is k_par > ``wedge_slope_horizon`` k_perp (above the horizon wedge); each
-    bin counts with its number of 3D cells.  NaN if the window holds no bin with power.
-    """
-    slope = float(ps.attrs["wedge_slope_horizon"])
-    k_par = ps["k_par"].values[:, None]
-    k_perp = ps["k_perp"].values[None, :]
-    n = ps["counts"].transpose("k_par", "k_perp").values
-    p_i = stokes_power(ps, "power_jy2", "I").transpose("k_par", "k_perp").values
-    p_p = stokes_power(ps, "power_jy2", "P").transpose("k_par", "k_perp").values
-    inside = (k_par > slope * k_perp) & (n > 0) & np.isfinite(p_i) & np.isfinite(p_p)
-    total_p = float(np.sum(n[inside] * p_p[inside]))
-    if not total_p > 0:
-        return float("nan")
-    return 100.0 * np.sqrt(max(float(np.sum(n[inside] * p_i[inside])), 0.0) / total_p)
 
 
 def _summary_row(cfg: ForecastConfig, tel: str) -> dict:
