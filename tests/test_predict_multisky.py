@@ -134,6 +134,43 @@ def test_each_column_equals_its_sky_alone_to_the_last_bit(tmp_path, monkeypatch,
         assert model.ndir[1:] == [6, 5, 4]  # the separate runs: 5, 4, 3 directions + centre
 
 
+@pytest.mark.parametrize("double", [True, False])
+def test_cube_crops_in_files_share_its_sum_and_equal_their_runs_alone(tmp_path, monkeypatch,
+                                                                      double):
+    """The study's way: a 12 x 12 cube and its crops written by ``crop`` to their own
+    files, predicted together through the per-direction test beam with the centre
+    correction. The 6-pixel crop ends on a block boundary of the cube and is shared, the
+    8-pixel one is not; every column equals its separate run bit for bit."""
+    from ms_helpers import channel_freqs
+    from msleak.io.fits import write_cube
+    from msleak.sky.cube import SkyCube, crop, make_celestial_wcs
+
+    ms = build_ms(tmp_path / "obs.ms", ntime=3)
+    freq = channel_freqs(ms)
+    ra0, dec0 = np.degrees(phase_centre(ms))
+    rng = np.random.default_rng(9)
+    cube = SkyCube(data=rng.normal(0, 1, (2, freq.size, 12, 12)).astype(np.float32),
+                   freq=freq, stokes=("Q", "U"),
+                   wcs=make_celestial_wcs(12, 12, 0.3, ra0, dec0), units="Jy/pixel")
+    files = [write_cube(cube, tmp_path / "sky.fits")]
+    files += [write_cube(crop(cube, npix=n), tmp_path / f"sky_{n}.fits") for n in (6, 8)]
+    targets = [(f, f"M{k}", None) for k, f in enumerate(files)]
+    model = _CountingBeam()
+    monkeypatch.setattr(chunks, "_load_beam", lambda name, ms_, options=None: model)
+    seen = []
+    nesting = K._nesting
+    monkeypatch.setattr(K, "_nesting", lambda prepared: seen.append(nesting(prepared))
+                        or seen[-1])
+    results = _together(ms, targets, beam="everybeam", double=double)
+    assert [r.n_sources["f0_d0"] for r in results] == [144, 36, 64]
+    assert seen and all(s == ([0, 2], {1: 0}) for s in seen)
+    _separate(ms, targets, beam="everybeam", double=double)
+    for _, column, _ in targets:
+        got, alone = _col(ms, column), _col(ms, f"R_{column}")
+        assert np.abs(alone).max() > 0.1
+        np.testing.assert_array_equal(got, alone)
+
+
 def test_fov_per_sky_and_shared_directions_match_direct_sums(tmp_path):
     """No beam, --double: every column = the direct DFT of its sky's sources (the FoV
     keeping |l|, |m| <= 1 deg), to complex64 storage precision."""
@@ -199,6 +236,74 @@ def test_predict_grams_equals_one_sky_at_a_time_and_the_direct_sum(dtype):
         scale = max(np.abs(want).max(), 1.0)
         rtol = 1e-10 if dtype == np.complex128 else 2e-5
         assert np.abs(K.gram_to_matrix(grams[k]) - want).max() <= rtol * scale
+
+
+def _grid_lmn1(npix, pixel_rad):
+    """(l, m, n - 1) of a centred npix x npix grid (a SIN cube about the phase centre)."""
+    x = (np.arange(npix) - (npix - 1) / 2) * pixel_rad
+    l, m = (a.ravel() for a in np.meshgrid(x, x))
+    return np.stack([l, m, -(l * l + m * m) / (1 + np.sqrt(1 - l * l - m * m))], axis=1)
+
+
+def _crop_rows(npix, keep):
+    """Rows of the centred keep x keep crop of an npix x npix grid, in raster order."""
+    cut = (npix - keep) // 2
+    return np.arange(npix * npix).reshape(npix, npix)[cut:cut + keep, cut:cut + keep].ravel()
+
+
+def test_sky_blocks_square_rings_from_the_centre():
+    """A 12 x 12 grid: rings of 4, 12, 20, 28, 36, 44 pixels (Chebyshev radius in
+    half pixels 1, 3, .. 11); blocks of at least BLOCK_MIN = 32: (4 + 12 + 20),
+    (28 + 36), 44. A centred crop's order is the grid's order restricted to it."""
+    lmn1 = _grid_lmn1(12, np.radians(0.3))
+    order, ends = K.sky_blocks(lmn1)
+    rho = np.max(np.abs(lmn1[order, :2]), axis=1) / np.radians(0.15)
+    np.testing.assert_allclose(np.diff(np.unique(np.round(rho))), 2)
+    assert np.all(np.diff(np.round(rho)) >= 0)
+    assert K.BLOCK_MIN == 32 and ends.tolist() == [36, 100, 144]
+    for keep in (2, 6, 8, 10):
+        rows = _crop_rows(12, keep)
+        sub_order, sub_ends = K.sky_blocks(lmn1[rows])
+        np.testing.assert_array_equal(rows[sub_order], order[:keep * keep])
+        # the same blocks, the last one cut at the crop's edge
+        assert sub_ends.tolist() == [e for e in (36, 100) if e < keep * keep] + [keep * keep]
+    assert K.sky_blocks(np.zeros((0, 3)))[1].size == 0
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+def test_crops_share_the_sum_of_their_cube_and_equal_it_alone(dtype, monkeypatch):
+    """Crops of a 12 x 12 cube that end on a block boundary of it (6 and 10 pixels) are
+    copies of the cube's sum after that block; the 8-pixel crop does not end on one and
+    is computed itself. Every sky, shared or not, equals its run alone bit for bit, and
+    the direct sum to rounding; another realisation on the same grid is computed itself."""
+    rng = np.random.default_rng(4)
+    nst, nt, nch, npix = 5, 2, 3, 12
+    lmn1 = _grid_lmn1(npix, np.radians(0.3))
+    xyz = rng.normal(0, 400, (nt, nst, 3))
+    freq = 150e6 + 195312.5 * np.arange(nch)
+    shape = (nst, nt, nch, npix * npix, 2, 2)
+    jones = (rng.normal(size=shape) + 1j * rng.normal(size=shape)).astype(dtype)
+    seeds = [np.zeros((npix * npix, nch, 4)) for _ in range(2)]
+    for iquv in seeds:
+        iquv[..., 1:3] = rng.normal(size=(npix * npix, nch, 2))
+    index = [np.arange(npix * npix), _crop_rows(npix, 6), _crop_rows(npix, 10),
+             _crop_rows(npix, 8), np.arange(npix * npix)]
+    iquv = [seeds[0][i] for i in index[:4]] + [seeds[1]]
+    factors = [K.brightness_factors(x) for x in iquv]
+    seen = []
+    nesting = K._nesting
+    monkeypatch.setattr(K, "_nesting", lambda prepared: seen.append(nesting(prepared))
+                        or seen[-1])
+    grams = K.predict_grams(jones, xyz, lmn1, freq,
+                            [(i, w, s) for i, (w, s) in zip(index, factors)], dtype=dtype)
+    assert seen == [([0, 3, 4], {2: 0, 1: 0})]
+    for k, (i, (w, s)) in enumerate(zip(index, factors)):
+        alone = K.predict_gram(jones[..., i, :, :], xyz, lmn1[i], freq, w, s, dtype=dtype)
+        np.testing.assert_array_equal(grams[k], alone)
+        want = _direct(jones[..., i, :, :].astype(np.complex128), None, xyz, lmn1[i], freq,
+                       iquv[k])
+        rtol = 1e-10 if dtype == np.complex128 else 2e-5
+        assert np.abs(K.gram_to_matrix(grams[k]) - want).max() <= rtol * np.abs(want).max()
 
 
 def test_plan_chunks_counts_one_output_per_sky():

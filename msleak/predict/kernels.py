@@ -2,9 +2,10 @@
 
 The kernels compute V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i uvw_pq . (l, m, n - 1) / lambda)
 with uvw_pq = x_q - x_p (antenna 2 minus antenna 1, the MS convention), factorised per
-station (x_p from :mod:`msleak.predict.stations`) and evaluated as two BLAS ``herk`` per
-(time, channel). :func:`predict_grams` predicts several skies that share directions in one
-pass, each exactly as if run alone. All in the linear (X, Y) feed basis
+station (x_p from :mod:`msleak.predict.stations`) and evaluated as BLAS ``herk`` per
+(time, channel), summed outwards in blocks of square rings (:func:`sky_blocks`).
+:func:`predict_grams` predicts several skies that share directions in one pass, each
+exactly as if run alone; a crop of another sky of the run is that sky's partial sum. All in the linear (X, Y) feed basis
 (:func:`linear_to_circular` converts); phases float64, matrices in the output precision.
 
 Sign convention, factorisation and sharing between skies: docs/predict.md and
@@ -27,6 +28,7 @@ from msleak.sky.sources import lmn
 __all__ = [
     "lmn_minus_one",
     "brightness_factors",
+    "sky_blocks",
     "column_layout",
     "predict_gram",
     "predict_grams",
@@ -107,32 +109,80 @@ def brightness_factors(iquv: np.ndarray, rtol: float = 1e-12) -> tuple[np.ndarra
     return w, sign
 
 
-def column_layout(sign: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Column of Z for every (channel, direction, eigenvector): positives first.
+#: Directions whose Chebyshev radii max(|l|, |m|) differ by less than this (rad) form one
+#: ring: the pixels of a square ring of a cube about the phase centre (docs/predict.md).
+RING_GAP = 1e-9
+#: Rings are merged, from the centre out, into blocks of at least this many directions
+#: (one pair of herk calls per block; BLAS is efficient from about 32 columns).
+BLOCK_MIN = 32
+
+
+def sky_blocks(lmn1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Summation order of a sky's directions: outwards in square rings, in blocks.
+
+    Parameters
+    ----------
+    lmn1 : (ndir, 3) float
+        (l, m, n - 1) of the sky's directions.
+
+    Returns
+    -------
+    order : (ndir,) int64
+        Directions sorted by max(|l|, |m|), then l, then m: a function of each direction
+        alone, so a centred square crop of a sky is a prefix of the sky's order.
+    ends : (nblock,) int64
+        End (exclusive, in ``order``) of each block: rings (radii within
+        :data:`RING_GAP`) merged from the centre out until a block holds
+        :data:`BLOCK_MIN` directions; the last block ends at ndir.
+    """
+    lmn1 = np.asarray(lmn1, dtype=np.float64).reshape(-1, 3)
+    rho = np.maximum(np.abs(lmn1[:, 0]), np.abs(lmn1[:, 1]))
+    order = np.lexsort((lmn1[:, 1], lmn1[:, 0], rho)).astype(np.int64)
+    ring_ends = np.append(np.flatnonzero(np.diff(rho[order]) > RING_GAP) + 1, rho.size)
+    ends, start = [], 0
+    for end in ring_ends[ring_ends > 0]:
+        if end - start >= BLOCK_MIN or end == rho.size:
+            ends.append(end)
+            start = end
+    return order, np.asarray(ends, dtype=np.int64)
+
+
+def column_layout(sign: np.ndarray, ends: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Column of Z for every (channel, direction, eigenvector): block by block, each
+    block's positive columns first, then its negative ones.
 
     Parameters
     ----------
     sign : (ndir, nchan, 2) int8
-        From :func:`brightness_factors`.
+        From :func:`brightness_factors`, directions in summation order.
+    ends : (nblock,) int
+        Block ends (:func:`sky_blocks`); block b owns columns 2 start_b .. 2 end_b - 1.
 
     Returns
     -------
     colmap : (nchan, ndir, 2) int32
         Column index in Z, or -1 for a dropped eigenvector.
-    kpos, kneg : (nchan,) int64
-        Numbers of positive and negative columns per channel.
+    kpos, kneg : (nblock, nchan) int64
+        Numbers of positive and negative columns per block and channel.
     """
-    s = np.transpose(np.asarray(sign), (1, 0, 2)).reshape(sign.shape[1], -1)
-    pos = s > 0
-    neg = s < 0
-    kpos = pos.sum(axis=1)
-    kneg = neg.sum(axis=1)
+    ndir, nchan = np.shape(sign)[:2]
+    s = np.transpose(np.asarray(sign), (1, 0, 2)).reshape(nchan, 2 * ndir)
+    ends = np.asarray(ends, dtype=np.int64)
+    starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
+    block = np.repeat(np.arange(ends.size), 2 * (ends - starts))  # block of every entry
     colmap = np.full(s.shape, -1, dtype=np.int32)
-    rank_pos = np.cumsum(pos, axis=1) - 1
-    rank_neg = np.cumsum(neg, axis=1) - 1 + kpos[:, None]
-    colmap[pos] = rank_pos[pos]
-    colmap[neg] = rank_neg[neg]
-    return colmap.reshape(sign.shape[1], sign.shape[0], 2), kpos.astype(np.int64), kneg.astype(np.int64)
+    counts = []
+    for flags in (s > 0, s < 0):
+        run = np.concatenate([np.zeros((nchan, 1), np.int64), np.cumsum(flags, axis=1)],
+                             axis=1)
+        before = run[:, 2 * starts]  # (nchan, nblock) columns of earlier blocks
+        counts.append((run[:, 2 * ends] - before).T)
+        rank = run[:, 1:] - 1 - before[:, block]
+        offset = 2 * starts[block] + (counts[0].T[:, block] if len(counts) == 2 else 0)
+        colmap[flags] = (offset + rank)[flags]
+    kpos, kneg = (c.astype(np.int64) for c in counts)
+    return colmap.reshape(nchan, ndir, 2), kpos, kneg
 
 
 @nb.njit(nogil=True, cache=True)
@@ -168,19 +218,17 @@ def _station_a(a, phase, p, jones, have_jones, jp, jt, jc):
 
 
 @nb.njit(nogil=True, cache=True)
-def _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap, kpos, kneg):
-    """Rows 2p, 2p+1 of every sky's Z_k^T = (A_p W)^T at channel c.
+def _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap):
+    """Rows 2p, 2p+1 of every computed sky's Z_r^T = (A_p W)^T at channel c.
 
-    Z_k^T of sky k is a C-order (2 nst, 2 ndir_k) array = Fortran (2 ndir_k, 2 nst) from
-    offset 2 nst * 2 ptr[k] of z: the rows of one station are written contiguously."""
-    for k in range(ptr.shape[0] - 1):
-        if kpos[k, c] + kneg[k, c] == 0:
-            continue
-        kmax = 2 * (ptr[k + 1] - ptr[k])
-        row = n2 * 2 * ptr[k] + 2 * p * kmax
+    Z_r^T of sky r is a C-order (2 nst, 2 ndir_r) array = Fortran (2 ndir_r, 2 nst) from
+    offset 2 nst * 2 ptr[r] of z: the rows of one station are written contiguously."""
+    for r in range(ptr.shape[0] - 1):
+        kmax = 2 * (ptr[r + 1] - ptr[r])
+        row = n2 * 2 * ptr[r] + 2 * p * kmax
         zx = z[row:row + kmax]
         zy = z[row + kmax:row + 2 * kmax]
-        for j in range(ptr[k], ptr[k + 1]):
+        for j in range(ptr[r], ptr[r + 1]):
             s = dirs[j]
             col0 = colmap[c, j, 0]
             col1 = colmap[c, j, 1]
@@ -198,8 +246,10 @@ def _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap, kpos, kneg):
 
 
 @nb.njit(nogil=True, cache=True)
-def _herks(z, n2, t, c, ptr, kpos, kneg, gram):
-    """gram[k, t, c] += Z+ Z+^H - Z- Z-^H of every sky k (herk('U', 'C') on Z_k^T)."""
+def _herks(z, n2, t, c, ptr, sky, boff, bstart, kpos, kneg, sptr, snap, gram):
+    """gram[sky[r], t, c] += Z+ Z+^H - Z- Z-^H of every computed sky r, block by block
+    (herk('U', 'C') on column ranges of Z_r^T); after block b, copies of the sum go to the
+    skies snap[sptr[b]:sptr[b + 1]] (crops whose blocks are r's first ones)."""
     uplo = np.empty(1, dtype=np.uint8)
     uplo[0] = 85  # 'U'
     trans = np.empty(1, dtype=np.uint8)
@@ -212,36 +262,34 @@ def _herks(z, n2, t, c, ptr, kpos, kneg, gram):
     beta32 = np.ones(1, dtype=np.float32)
     alpha64 = np.empty(1, dtype=np.float64)
     beta64 = np.ones(1, dtype=np.float64)
-    for k in range(ptr.shape[0] - 1):
-        kp = kpos[k, c]
-        kk = kp + kneg[k, c]
-        if kk == 0:
-            continue
-        lda[0] = 2 * (ptr[k + 1] - ptr[k])
-        base = z.ctypes.data + n2 * 2 * ptr[k] * z.itemsize
-        out = gram[k, t, c]
-        for sgn in range(2):
-            k0 = 0 if sgn == 0 else kp
-            k1 = kp if sgn == 0 else kk
-            if k1 == k0:
-                continue
-            k_arr[0] = k1 - k0
-            zptr = base + k0 * z.itemsize
-            if gram.itemsize == 8:
-                alpha32[0] = 1.0 if sgn == 0 else -1.0
-                _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
-                       k_arr.ctypes.data, alpha32.ctypes.data, zptr, lda.ctypes.data,
-                       beta32.ctypes.data, out.ctypes.data, n_arr.ctypes.data)
-            else:
-                alpha64[0] = 1.0 if sgn == 0 else -1.0
-                _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
-                       k_arr.ctypes.data, alpha64.ctypes.data, zptr, lda.ctypes.data,
-                       beta64.ctypes.data, out.ctypes.data, n_arr.ctypes.data)
+    for r in range(ptr.shape[0] - 1):
+        lda[0] = 2 * (ptr[r + 1] - ptr[r])
+        base = z.ctypes.data + n2 * 2 * ptr[r] * z.itemsize
+        out = gram[sky[r], t, c]
+        for b in range(boff[r], boff[r + 1]):
+            for sgn in range(2):
+                k0 = 2 * bstart[b] + (0 if sgn == 0 else kpos[b, c])
+                k_arr[0] = kpos[b, c] if sgn == 0 else kneg[b, c]
+                if k_arr[0] == 0:
+                    continue
+                zptr = base + k0 * z.itemsize
+                if gram.itemsize == 8:
+                    alpha32[0] = 1.0 if sgn == 0 else -1.0
+                    _cherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                           k_arr.ctypes.data, alpha32.ctypes.data, zptr, lda.ctypes.data,
+                           beta32.ctypes.data, out.ctypes.data, n_arr.ctypes.data)
+                else:
+                    alpha64[0] = 1.0 if sgn == 0 else -1.0
+                    _zherk(uplo.ctypes.data, trans.ctypes.data, n_arr.ctypes.data,
+                           k_arr.ctypes.data, alpha64.ctypes.data, zptr, lda.ctypes.data,
+                           beta64.ctypes.data, out.ctypes.data, n_arr.ctypes.data)
+            for i in range(sptr[b], sptr[b + 1]):
+                gram[snap[i], t, c] = out
 
 
 @nb.njit(parallel=True, nogil=True, cache=True)
-def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, kpos,
-            kneg, gram):
+def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, sky,
+            boff, bstart, kpos, kneg, sptr, snap, gram):
     nt, nst = xyz.shape[0], xyz.shape[1]
     ndir = lmn1.shape[0]
     nchan = freq.shape[0]
@@ -274,8 +322,8 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, co
             for p in range(nst):
                 _station_a(a, phase, p, jones, have_jones, p if jones.shape[0] > 1 else 0,
                            jt, jc)
-                _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap, kpos, kneg)
-            _herks(z, n2, t, c, ptr, kpos, kneg, gram)
+                _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap)
+            _herks(z, n2, t, c, ptr, sky, boff, bstart, kpos, kneg, sptr, snap, gram)
 
 
 def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
@@ -285,7 +333,10 @@ def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
 
     The per-station matrices A_p(s) = J_p(s) exp(-2 pi i x_p . (l, m, n - 1) / lambda) are
     built once per (time, channel) for every direction of ``lmn1`` and used by every sky
-    that has that direction; each sky then costs its own Z = A W and Gram product.
+    that has that direction; each sky then costs its own Z = A W and Gram product, except
+    a sky whose directions, factors and blocks (:func:`sky_blocks`) are the first ones of
+    another sky's (a centred crop ending on a block boundary): its result is a copy of
+    that sky's sum after those blocks.
 
     Parameters
     ----------
@@ -325,14 +376,13 @@ def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
     nt, nst = xyz.shape[:2]
     nchan = freq.size
     jones_arr, have = _check_jones(jones, nst, nt, nchan, lmn1.shape[0], dtype)
-    dirs, ptr, w, colmap, kpos, kneg = _pack_skies(skies, lmn1.shape[0], nchan)
+    packed = _pack_skies(skies, lmn1, nchan)
     gram = np.zeros((len(skies), nt, nchan, 2 * nst, 2 * nst), dtype=dtype)
     regular = _regular_spacing(freq)
     nthreads = nb.get_num_threads()
     block = max(1, min(nchan, -(-nt * nchan // (4 * nthreads)))) if regular else 1
     with single_threaded_blas():
-        _kernel(jones_arr, have, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, kpos,
-                kneg, gram)
+        _kernel(jones_arr, have, xyz, lmn1, freq, regular, block, *packed, gram)
     return gram
 
 
@@ -373,26 +423,67 @@ def _check_jones(jones, nst: int, nt: int, nchan: int, ndir: int, dtype):
     return jones_arr, True
 
 
-def _pack_skies(skies, ndir: int, nchan: int):
-    """The skies' directions, factors and column layouts concatenated sky after sky."""
-    index = [np.asarray(i, dtype=np.int64).reshape(-1) for i, _, _ in skies]
-    ptr = np.zeros(len(skies) + 1, dtype=np.int64)
-    ptr[1:] = np.cumsum([i.size for i in index])
-    dirs = np.concatenate(index) if index else np.zeros(0, dtype=np.int64)
-    if dirs.size and (dirs.min() < 0 or dirs.max() >= ndir):
-        raise ValueError(f"sky direction index out of range 0..{ndir - 1}")
-    w = np.zeros((dirs.size, nchan, 2, 2), dtype=np.complex128)
-    colmap = np.full((nchan, dirs.size, 2), -1, dtype=np.int32)
-    kpos = np.zeros((len(skies), nchan), dtype=np.int64)
-    kneg = np.zeros((len(skies), nchan), dtype=np.int64)
-    for k, (_, wk, sign) in enumerate(skies):
-        n = index[k].size
+def _pack_skies(skies, lmn1: np.ndarray, nchan: int) -> tuple:
+    """The kernel's arrays: the computed skies' directions, factors and column layouts in
+    summation order (:func:`sky_blocks`), their blocks, and the skies that are copies of
+    a computed sky's sum after one of its blocks (a crop sharing its first blocks)."""
+    ndir = lmn1.shape[0]
+    prepared = []
+    for k, (index, wk, sign) in enumerate(skies):
+        index = np.asarray(index, dtype=np.int64).reshape(-1)
+        n = index.size
         if np.shape(wk) != (n, nchan, 2, 2) or np.shape(sign) != (n, nchan, 2):
             raise ValueError(f"sky {k}: w and sign must have shapes ({n}, {nchan}, 2, 2) and "
                              f"({n}, {nchan}, 2)")
-        w[ptr[k]:ptr[k + 1]] = wk
-        colmap[:, ptr[k]:ptr[k + 1]], kpos[k], kneg[k] = column_layout(sign)
-    return dirs, ptr, w, colmap, kpos, kneg
+        if n and (index.min() < 0 or index.max() >= ndir):
+            raise ValueError(f"sky direction index out of range 0..{ndir - 1}")
+        order, ends = sky_blocks(lmn1[index])
+        prepared.append((index[order], np.asarray(wk)[order], np.asarray(sign)[order], ends))
+    roots, parent = _nesting(prepared)
+    dirs, w, sign, ends = ([prepared[r][f] for r in roots] for f in range(4))
+    layouts = [column_layout(sg, e) for sg, e in zip(sign, ends)]
+    boff = np.cumsum([0] + [e.size for e in ends]).astype(np.int64)
+    # a nested sky is the copy of its root's sum after the root's block of its last one
+    last = {k: boff[roots.index(r)] + prepared[k][3].size - 1 for k, r in parent.items()}
+    nested = sorted(last, key=lambda k: (last[k], k))
+    sptr = np.searchsorted([last[k] for k in nested], np.arange(boff[-1] + 1))
+    return (_concat(dirs, (0,), np.int64),
+            np.cumsum([0] + [d.size for d in dirs]).astype(np.int64),
+            _concat(w, (0, nchan, 2, 2), np.complex128),
+            np.concatenate([np.zeros((nchan, 0, 2), np.int32)] + [c for c, _, _ in layouts],
+                           axis=1),
+            np.asarray(roots, dtype=np.int64), boff,
+            _concat([np.concatenate([[0], e[:-1]]) for e in ends], (0,), np.int64),
+            _concat([kp for _, kp, _ in layouts], (0, nchan), np.int64),
+            _concat([kn for _, _, kn in layouts], (0, nchan), np.int64),
+            sptr.astype(np.int64), np.asarray(nested, dtype=np.int64))
+
+
+def _concat(parts: list, empty_shape: tuple, dtype) -> np.ndarray:
+    """``parts`` concatenated along axis 0 as ``dtype`` (an empty array if none)."""
+    return np.concatenate([np.zeros(empty_shape, dtype)] + list(parts)).astype(dtype)
+
+
+def _nesting(prepared: list) -> tuple[list, dict]:
+    """Skies computed (``roots``, sorted) and ``{sky: root}`` of the others: a sky whose
+    directions, factors and blocks are the first ones of a larger (or an equal, earlier)
+    sky's. Skies without directions are neither."""
+    roots: list = []
+    parent: dict = {}
+    for k in sorted(range(len(prepared)), key=lambda k: (-prepared[k][0].size, k)):
+        dirs, w, sign, ends = prepared[k]
+        if not dirs.size:
+            continue
+        for r in roots:
+            rd, rw, rs, rends = prepared[r]
+            n = dirs.size
+            if (np.array_equal(rends[:ends.size], ends) and np.array_equal(rd[:n], dirs)
+                    and np.array_equal(rs[:n], sign) and np.array_equal(rw[:n], w)):
+                parent[k] = r
+                break
+        else:
+            roots.append(k)
+    return sorted(roots), parent
 
 
 def _regular_spacing(freq: np.ndarray) -> bool:
