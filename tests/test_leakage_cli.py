@@ -217,3 +217,30 @@ def test_realisation_errors(products, tmp_path, args, message):
     r = run(products["15deg"], products["9deg"], products["4deg"], *args, "-o", tmp_path / "o")
     assert r.exit_code == 2
     assert message in r.output
+
+
+def test_maps_figure_shows_the_first_realisation(tmp_path, monkeypatch):
+    """Two realisations of two fields of view: the maps figure gets the two inputs of the
+    first realisation given (2019 here), in order; the histograms get all four."""
+    from msleak.plot import leakage as plots
+
+    rng = np.random.default_rng(32)
+    paths, labels, reals = [], [], []
+    for seed in (2019, 2018):
+        for label in ("15deg", "4deg"):
+            v_p = gaussian_voxels(SHAPE, 2.0, rng)
+            paths.append(write_ps(tmp_path / f"ps_{label}_{seed}.h5",
+                                  make_ps_dataset(rotated_leakage(v_p, 0.01, rng), v_p)))
+            labels.append(label)
+            reals.append(str(seed))
+    shown = {}
+    for name in ("plot_leakage_maps", "plot_leakage_histograms"):
+        monkeypatch.setattr(plots, name, lambda result, path, pdf=True, _n=name:
+                            shown.setdefault(_n, result) and path)
+    r = run(*paths, "--labels", ",".join(labels), "--realisations", ",".join(reals),
+            "--n-boot", "20", "--no-pdf", "-o", tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    maps = shown["plot_leakage_maps"]
+    assert maps["realisation"].values.tolist() == [2019, 2019]
+    assert maps["label"].values.tolist() == ["15deg", "4deg"]
+    assert shown["plot_leakage_histograms"].sizes["input"] == 4

@@ -9,6 +9,7 @@ import re
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import xarray as xr
 
 from msleak.errors import InputError
@@ -184,6 +185,13 @@ def refuse_existing(output: str | os.PathLike, overwrite: bool) -> None:
                          "another -o/--output or pass --overwrite")
 
 
+def first_realisation(result: xr.Dataset) -> xr.Dataset:
+    """The inputs of the first sky realisation (all inputs when there is one): the maps
+    figure shows one realisation, whose maps the others resemble."""
+    realisation = result["realisation"].values
+    return result.isel(input=np.flatnonzero(realisation == realisation[0]))
+
+
 def write_leakage(result: xr.Dataset, expected: Sequence[xr.Dataset],
                   corrected: Sequence[xr.Dataset], outdir: str | os.PathLike, *,
                   figures: bool = True, pdf: bool = True) -> dict[str, Path]:
@@ -203,7 +211,8 @@ def write_leakage(result: xr.Dataset, expected: Sequence[xr.Dataset],
                 ds, outdir / f"{kind}_{_safe(lab)}.h5", f"leakage_{kind}", overwrite=True,
                 history=history_lines(ds.attrs))
     if figures:
-        files["maps_png"] = plots.plot_leakage_maps(result, outdir / "leakage_maps.png", pdf)
+        files["maps_png"] = plots.plot_leakage_maps(first_realisation(result),
+                                                    outdir / "leakage_maps.png", pdf)
         files["hist_png"] = plots.plot_leakage_histograms(result, outdir / "leakage_hist.png",
                                                           pdf)
         name = plots.field_title(result)
