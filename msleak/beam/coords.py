@@ -120,6 +120,10 @@ def exact_j2000_to_itrf(time_mjd_s: float, ra, dec, position_itrf=None) -> np.nd
         return srv.convert(ra, dec)
 
 
+#: The J2000 pole as a unit vector.
+_J2000_POLE = np.array([0.0, 0.0, 1.0])
+
+
 class ItrfMap:
     """The J2000 -> ITRF direction map ``normalize(M a + b)`` of one time (see module notes).
 
@@ -133,14 +137,19 @@ class ItrfMap:
         Angular radius (rad) of that region.
     fit_error : float
         Largest angle (rad) between the map and casacore at the anchor directions.
+    time, position : float, (3,) array or None
+        The time (UTC, MJD s) and frame position (m; None: EveryBeam's LOFAR position)
+        the map was fitted for.
     """
 
-    def __init__(self, matrix, offset, centre, radius, fit_error):
+    def __init__(self, matrix, offset, centre, radius, fit_error, time=0.0, position=None):
         self.matrix = matrix
         self.offset = offset
         self.centre = centre
         self.radius = radius
         self.fit_error = fit_error
+        self.time = time
+        self.position = position
 
     def __call__(self, unit_j2000: np.ndarray) -> np.ndarray:
         """ITRF unit vectors (..., 3) of J2000 unit vectors (..., 3)."""
@@ -151,6 +160,14 @@ class ItrfMap:
         """Whether a direction lies inside the region the map was fitted over."""
         cosang = float(np.clip(np.dot(unit_j2000, self.centre), -1, 1))
         return np.arccos(cosang) <= self.radius + 1e-9
+
+    def pole(self) -> np.ndarray:
+        """ITRF unit vector (3,) of the J2000 pole: through the map when the pole is inside
+        its region (a sky basis consistent with the mapped directions), else converted
+        exactly (casacore) at the map's time and position."""
+        if self.covers(_J2000_POLE):
+            return self(_J2000_POLE)
+        return exact_j2000_to_itrf(self.time, 0.0, np.pi / 2, position_itrf=self.position)[0]
 
 
 def _tangent_basis(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -229,7 +246,7 @@ def itrf_map(time_mjd_s: float, unit_j2000: np.ndarray, *, min_radius_rad: float
     err = float(np.max(np.linalg.norm(fitted - images, axis=1)))
     if err > 1e-8:
         log.debug("J2000->ITRF map fit error %.2g rad at t=%.1f", err, time_mjd_s)
-    return ItrfMap(matrix, offset, centre, radius, err)
+    return ItrfMap(matrix, offset, centre, radius, err, time_mjd_s, position_itrf)
 
 
 def sky_basis(d_itrf: np.ndarray, ncp_itrf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

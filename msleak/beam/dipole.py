@@ -20,7 +20,6 @@ from msleak.beam.base import BeamModel, BeamUnavailable
 from msleak.beam.coords import (
     clip_pole,
     enu_basis,
-    exact_j2000_to_itrf,
     itrf_map,
     radec_to_unit,
     sky_basis,
@@ -34,7 +33,6 @@ __all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
 log = logging.getLogger(__name__)
 
 StationFactor = Literal["airy", "gaussian", "none"]
-_NCP = np.array([0.0, 0.0, 1.0])
 
 
 def station_factor(kind: StationFactor, theta: np.ndarray, freq: np.ndarray,
@@ -174,9 +172,7 @@ class DipoleBeam(BeamModel):
         for it, t in enumerate(time):
             fitmap = itrf_map(float(t), np.vstack([u, p]), position_itrf=self._centre)
             d = fitmap(u)
-            ncp = fitmap(_NCP) if fitmap.covers(_NCP) else exact_j2000_to_itrf(
-                float(t), 0.0, np.pi / 2, position_itrf=self._centre)[0]
-            north, east = sky_basis(d, ncp)
+            north, east = sky_basis(d, fitmap.pole())
             theta = np.arccos(np.clip(d @ fitmap(p), -1, 1))
             diam_cache.clear()
             for si, s in enumerate(stations):

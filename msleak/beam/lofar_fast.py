@@ -23,7 +23,7 @@ import numpy as np
 
 from msleak._everybeam import import_everybeam
 from msleak.beam.base import BeamModel
-from msleak.beam.coords import clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit, sky_basis
+from msleak.beam.coords import clip_pole, itrf_map, radec_to_unit, sky_basis
 from msleak.beam.lofar_array import LofarArray
 from msleak.beam.lofar_kernels import station_jones_kernel
 from msleak.errors import InputError
@@ -32,7 +32,6 @@ __all__ = ["LofarFastBeam", "element_jones", "sky_rotation", "field_angles"]
 
 log = logging.getLogger(__name__)
 
-_NCP = np.array([0.0, 0.0, 1.0])
 
 
 def field_angles(axes: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -185,9 +184,7 @@ class LofarFastBeam(BeamModel):
         fitmap = itrf_map(time, np.vstack([u, s0u, t0u]))
         d = fitmap(u)
         s0, t0 = fitmap(s0u), fitmap(t0u)
-        # the pole through the same map when it is inside its region (consistent basis)
-        ncp = fitmap(_NCP) if fitmap.covers(_NCP) else exact_j2000_to_itrf(time, 0.0, np.pi / 2)[0]
-        return d, s0, t0, ncp
+        return d, s0, t0, fitmap.pole()
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         out = np.empty((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)

@@ -23,7 +23,7 @@ import numpy as np
 
 from msleak._everybeam import MWA_BEAM_FILE_NAME, MWA_BEAM_FILE_VARIABLE
 from msleak.beam.base import BeamModel, BeamUnavailable
-from msleak.beam.coords import (clip_pole, enu_basis, exact_j2000_to_itrf, itrf_map,
+from msleak.beam.coords import (clip_pole, enu_basis, itrf_map,
                                 radec_to_unit, sky_basis)
 from msleak.errors import InputError
 from msleak.io.ms import check_ms, read_antennas, read_beam_directions, read_spectral_windows
@@ -43,7 +43,6 @@ ELEMENT_MODELS = ("analytic", "fee")
 ANALYTIC_BAND_HZ = (70e6, 300e6)
 _FEE_REMEDY = (f"download {MWA_BEAM_FILE_NAME} (about 200 MB, from the MWA beam pages) and "
                f"pass it with `--beam-file PATH` or set {MWA_BEAM_FILE_VARIABLE} to it")
-_NCP = np.array([0.0, 0.0, 1.0])
 
 
 def _require_hyperbeam():
@@ -200,9 +199,7 @@ class MwaBeam(BeamModel):
         u = radec_to_unit(ra, clip_pole(dec))
         fitmap = itrf_map(time, u, position_itrf=self._centre)
         d = fitmap(u)
-        ncp = fitmap(_NCP) if fitmap.covers(_NCP) else exact_j2000_to_itrf(
-            time, 0.0, np.pi / 2, position_itrf=self._centre)[0]
-        north, east = sky_basis(d, ncp)
+        north, east = sky_basis(d, fitmap.pole())
         up = (d @ self._enu.T)[:, 2] > 0
         az, za = local_az_za(d[up] @ self._enu.T)
         rot = theta_phi_to_sky(az, za, self._enu, north[up], east[up])

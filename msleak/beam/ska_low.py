@@ -29,7 +29,7 @@ import numpy as np
 
 from msleak._everybeam import import_everybeam
 from msleak.beam.base import BeamModel, BeamUnavailable
-from msleak.beam.coords import clip_pole, exact_j2000_to_itrf, itrf_map, radec_to_unit, sky_basis
+from msleak.beam.coords import clip_pole, itrf_map, radec_to_unit, sky_basis
 from msleak.beam.ska_low_kernels import ska_low_station_kernel
 from msleak.errors import InputError
 from msleak.io.ms import (
@@ -47,7 +47,6 @@ __all__ = ["ElementModel", "ELEMENT_MODELS", "REFUSED_MODELS", "SKALA40_FREQUENC
 
 log = logging.getLogger(__name__)
 
-_NCP = np.array([0.0, 0.0, 1.0])
 
 #: Frequencies (Hz) of the SKALA4.0 spherical-wave coefficient sets in EveryBeam 0.9.0's
 #: ``oskar.h5`` (one element's coefficients each).
@@ -302,9 +301,7 @@ class SkaLowBeam(BeamModel):
         u = radec_to_unit(ra, clip_pole(dec))
         s0u = radec_to_unit(self.delay_dir[0], clip_pole(self.delay_dir[1]))
         fitmap = itrf_map(time, np.vstack([u, s0u]))
-        ncp = (fitmap(_NCP) if fitmap.covers(_NCP)
-               else exact_j2000_to_itrf(time, 0.0, np.pi / 2)[0])
-        return fitmap(u), fitmap(s0u), ncp
+        return fitmap(u), fitmap(s0u), fitmap.pole()
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         check_band(self.model, freq)

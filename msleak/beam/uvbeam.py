@@ -26,7 +26,6 @@ from msleak.beam.base import BeamModel, BeamUnavailable
 from msleak.beam.coords import (
     clip_pole,
     enu_basis,
-    exact_j2000_to_itrf,
     itrf_map,
     radec_to_unit,
     sky_basis,
@@ -39,7 +38,6 @@ __all__ = ["UVBeamModel", "frequency_weights", "check_frequencies", "response_ve
 
 log = logging.getLogger(__name__)
 
-_NCP = np.array([0.0, 0.0, 1.0])
 #: rotation angle (rad) of the finite differences that move the beam to each station's frame
 _STEP_RAD = 1e-6
 #: a station evaluates directions within this many times its frame tilt (rad) of the zenith
@@ -218,10 +216,8 @@ class UVBeamModel(BeamModel):
         """ITRF directions (ndir, 3) and their sky (North, East) basis of one time."""
         u = radec_to_unit(ra, clip_pole(dec))
         fitmap = itrf_map(time, u, position_itrf=self._centre)
-        ncp = fitmap(_NCP) if fitmap.covers(_NCP) else exact_j2000_to_itrf(
-            time, 0.0, np.pi / 2, position_itrf=self._centre)[0]
         d = fitmap(u)
-        return d, *sky_basis(d, ncp)
+        return d, *sky_basis(d, fitmap.pole())
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         check_frequencies(freq, self.file_freq, self.file_name)
