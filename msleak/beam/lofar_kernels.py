@@ -54,48 +54,52 @@ def sincos(x):
     return sgs * (s + sw * (c - s)), sgc * (c + sw * (s - c))
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def _accumulate(acc, delta, positions, weights, freq, uniform, df, tau, zr, zi, sr, si):
-    """acc[c] = sum_j weights[j] exp(-2 pi i freq[c] delta.positions[j] / c).
+@njit(cache=True, fastmath={"contract"})
+def _accumulate(acc, delta, nb, positions, weights, freq, uniform, df, zr, zi, sr, si):
+    """acc[kl, c] = sum_j weights[j] exp(-2 pi i freq[c] delta[kl].positions[j] / c) for
+    the ``nb`` directions of a block, summed over j in order.
 
-    ``tau, zr, zi, sr, si`` are scratch arrays of at least ``len(positions)`` floats.
+    ``zr, zi, sr, si`` are scratch arrays of at least (len(positions), nb) floats; the
+    innermost loops run over the block's directions (contiguous, they vectorise).
     """
     nchan = freq.size
     n = positions.shape[0]
     k = -2.0 * math.pi / SPEED_OF_LIGHT
+    f0 = freq[0]
     for j in range(n):
-        tau[j] = k * (delta[0] * positions[j, 0] + delta[1] * positions[j, 1]
-                      + delta[2] * positions[j, 2])
-    if uniform:
-        f0 = freq[0]
+        p0, p1, p2, wj = positions[j, 0], positions[j, 1], positions[j, 2], weights[j]
+        for kl in range(nb):
+            tau = k * (delta[kl, 0] * p0 + delta[kl, 1] * p1 + delta[kl, 2] * p2)
+            sr[j, kl] = tau  # the delay, kept for the non-uniform band
+            if uniform:
+                s, c = sincos(tau * f0)
+                zr[j, kl] = c * wj
+                zi[j, kl] = s * wj
+                s, c = sincos(tau * df)
+                sr[j, kl] = c
+                si[j, kl] = s
+    ar = np.empty(nb)
+    ai = np.empty(nb)
+    for ch in range(nchan):
+        ar[:] = 0.0
+        ai[:] = 0.0
         for j in range(n):
-            s, c = sincos(tau[j] * f0)
-            zr[j] = c * weights[j]
-            zi[j] = s * weights[j]
-            s, c = sincos(tau[j] * df)
-            sr[j] = c
-            si[j] = s
-        for ch in range(nchan):
-            ar = 0.0
-            ai = 0.0
-            for j in range(n):
-                a = zr[j]
-                b = zi[j]
-                ar += a
-                ai += b
-                zr[j] = a * sr[j] - b * si[j]
-                zi[j] = a * si[j] + b * sr[j]
-            acc[ch] = complex(ar, ai)
-    else:
-        for ch in range(nchan):
-            f = freq[ch]
-            ar = 0.0
-            ai = 0.0
-            for j in range(n):
-                s, c = sincos(tau[j] * f)
-                ar += c * weights[j]
-                ai += s * weights[j]
-            acc[ch] = complex(ar, ai)
+            if uniform:
+                for kl in range(nb):
+                    a = zr[j, kl]
+                    b = zi[j, kl]
+                    ar[kl] += a
+                    ai[kl] += b
+                    zr[j, kl] = a * sr[j, kl] - b * si[j, kl]
+                    zi[j, kl] = a * si[j, kl] + b * sr[j, kl]
+            else:
+                wj = weights[j]
+                for kl in range(nb):
+                    s, c = sincos(sr[j, kl] * freq[ch])
+                    ar[kl] += c * wj
+                    ai[kl] += s * wj
+        for kl in range(nb):
+            acc[kl, ch] = complex(ar[kl], ai[kl])
 
 
 @njit(parallel=True, cache=True)
@@ -147,19 +151,18 @@ def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, fi
     for blk in prange(nblock):
         k0 = blk * _BLOCK
         nb = min(_BLOCK, ndir - k0)
-        af = np.empty(nchan, np.complex128)
-        wf = np.empty(nchan, np.complex128)
+        af = np.empty((nb, nchan), np.complex128)
+        wf = np.empty((nb, nchan), np.complex128)
         at = np.empty((nlayout, nb, nchan), np.complex128)
         sst = np.empty((nb, nchan), np.complex128)
         extra = np.empty((nchan, nb, 2, 2), np.complex128)
-        tau = np.empty(nmax)
-        zr = np.empty(nmax)
-        zi = np.empty(nmax)
-        sr = np.empty(nmax)
-        si = np.empty(nmax)
+        zr = np.empty((nmax, nb))
+        zi = np.empty((nmax, nb))
+        sr = np.empty((nmax, nb))
+        si = np.empty((nmax, nb))
         ds = np.empty((nb, 3))
         _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df,
-                      at, ds, tau, zr, zi, sr, si)
+                      at, ds, zr, zi, sr, si)
         for slot in range(nslot):
             g0 = field_group[slot_fields[slot_ptr[slot]]]
             sst[:, :] = 0.0
@@ -173,20 +176,20 @@ def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, fi
                 lay = field_layout[fi]
                 scale = field_scale[fi]
                 g = field_group[fi]
+                _accumulate(af, ds, nb, tile_pos[fi], tile_w[fi], freq, uniform, df,
+                            zr, zi, sr, si)
+                _accumulate(wf, ds, nb, field_refpos[fi:fi + 1], one, freq, uniform, df,
+                            zr, zi, sr, si)
                 for kl in range(nb):
                     k = k0 + kl
                     if d[k, 0] * up[0] + d[k, 1] * up[1] + d[k, 2] * up[2] < 0.0:
                         continue
-                    _accumulate(af, ds[kl], tile_pos[fi], tile_w[fi], freq, uniform, df,
-                                tau, zr, zi, sr, si)
-                    _accumulate(wf, ds[kl], field_refpos[fi:fi + 1], one, freq, uniform, df,
-                                tau, zr, zi, sr, si)
                     if g == g0:
                         for c in range(nchan):
-                            sst[kl, c] += af[c] * at[lay, kl, c] * wf[c] * scale
+                            sst[kl, c] += af[kl, c] * at[lay, kl, c] * wf[kl, c] * scale
                     else:
                         for c in range(nchan):
-                            s = af[c] * at[lay, kl, c] * wf[c] * scale
+                            s = af[kl, c] * at[lay, kl, c] * wf[kl, c] * scale
                             for a in range(2):
                                 for b in range(2):
                                     extra[c, kl, a, b] += s * element_jones[g, c, k, a, b]
@@ -195,19 +198,18 @@ def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, fi
 
 @njit(inline="always")
 def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df, at, ds,
-                  tau, zr, zi, sr, si):
+                  zr, zi, sr, si):
     """Tile array factors ``at[layout, kl]`` of directions ``d[k0:k0 + nb]`` towards ``t0``,
     and their offsets ``ds[kl] = s0 - d`` from the station beam-former direction."""
-    dt = np.empty(3)
+    dt = np.empty((nb, 3))
     for kl in range(nb):
-        k = k0 + kl
         for i in range(3):
-            ds[kl, i] = s0[i] - d[k, i]
-            dt[i] = t0[i] - d[k, i]
-        for lay in range(layout_pos.shape[0]):
-            if need[lay]:
-                _accumulate(at[lay, kl], dt, layout_pos[lay], layout_w[lay], freq,
-                            uniform, df, tau, zr, zi, sr, si)
+            ds[kl, i] = s0[i] - d[k0 + kl, i]
+            dt[kl, i] = t0[i] - d[k0 + kl, i]
+    for lay in range(layout_pos.shape[0]):
+        if need[lay]:
+            _accumulate(at[lay], dt, nb, layout_pos[lay], layout_w[lay], freq, uniform, df,
+                        zr, zi, sr, si)
 
 
 @njit(inline="always")
