@@ -91,7 +91,7 @@ def element_jones(response, axes: np.ndarray, freq: np.ndarray, d: np.ndarray,
     nchan, ndir = freq.size, len(dl)
     h = np.asarray(response.response(np.repeat(freq, ndir), np.tile(theta, nchan),
                                      np.tile(phi, nchan))).reshape(nchan, ndir, 2, 2)
-    out = np.einsum("cdij,djk->cdik", h, rot)
+    out = h[..., :, :1] * rot[None, :, :1, :] + h[..., :, 1:] * rot[None, :, 1:, :]  # h @ rot
     out[:, dl[:, 2] < 0] = 0
     return out
 
