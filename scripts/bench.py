@@ -30,15 +30,20 @@ SCRIPTS = ROOT / "scripts"
 
 
 def timed(cmd: list, cwd: Path) -> dict:
-    """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak RSS (MiB), exit code, output."""
+    """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak RSS (MiB), CPU seconds (user +
+    system, a check on wall times taken while other jobs shared the machine), exit code,
+    output."""
     t0 = time.perf_counter()
     proc = subprocess.run(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd,
                           capture_output=True, text=True)
     wall = time.perf_counter() - t0
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", proc.stderr)
+    cpu = [float(m) for m in re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)",
+                                        proc.stderr)]
     return {"command": " ".join(map(str, cmd)).replace(str(ROOT) + "/", ""),
             "wall_s": round(wall, 2),
             "peak_rss_mib": round(int(rss.group(1)) / 1024, 1) if rss else None,
+            "cpu_s": round(sum(cpu), 2) if cpu else None,
             "exit": proc.returncode, "stdout": proc.stdout[-4000:],
             "stderr": proc.stderr[-2000:] if proc.returncode else ""}
 
