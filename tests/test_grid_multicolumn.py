@@ -177,28 +177,3 @@ def test_incomplete_column_among_several_is_refused_before_gridding(four_column_
         _grid(ms, ["DATA", "MODEL_A", "MODEL_B"], gridder="cell")
     with pytest.raises(InputError, match="no column 'NOPE'"):
         _grid(ms, ["DATA", "NOPE"], gridder="cell")
-
-
-def test_memory_plan_counts_every_column():
-    """Rows per chunk keep a task's working set within the budget with 1 and 3 columns:
-    the partial grids (measured on real accumulators after gridding one sample) plus per
-    row and channel 20 B of weights and flags as read, three float64 weights and, per
-    column, the column as read (32 B) and three copies of its Stokes visibilities."""
-    from msleak.ps.gridding import make_accumulator, make_grid
-    from msleak.ps.grid_tasks import Spec, rows_for_memory
-
-    nchan, budget = 50, 4e8
-    freq = 150e6 + 195312.5 * np.arange(nchan)
-    rows = {}
-    for ncol in (1, 3):
-        spec = Spec(tuple(COLUMNS[:ncol]), "wgrid", make_grid(16.0, 180.0), 30.0, 180.0,
-                     1e-6, 1, None, None)
-        acc = make_accumulator("wgrid", spec.grid, freq, nsets=ncol)
-        acc.add(np.array([[10.0, 5.0, 1.0]]), np.ones((ncol, 4, 1, nchan), complex),
-                np.ones((1, nchan)))
-        acc.grid_buffer()
-        fixed = acc.dirty.nbytes + acc.natural.sum_w.nbytes
-        per_row = nchan * (20 + 3 * 8 + ncol * (32 + 3 * 4 * 16))
-        rows[ncol] = rows_for_memory(budget, nchan, spec)
-        assert 0.9 * budget < fixed + rows[ncol] * per_row <= budget
-    assert rows[3] < rows[1] / 2.5

@@ -259,7 +259,7 @@ def test_predict_twice_same_ms_is_an_error(small_lofar_ms, sky):
 def test_memory_budget_is_shared_and_bounds_chunks():
     from msleak.parallel import open_runner
     from msleak.ps.gridding import make_grid
-    from msleak.ps.grid_tasks import Spec, rows_for_memory
+    from msleak.ps.grid_tasks import Spec, rows_for_memory, working_set
 
     with open_runner("threads", 4, 8e8) as runner:
         assert runner.workers == 4 and runner.memory_per_task == pytest.approx(2e8)
@@ -267,18 +267,10 @@ def test_memory_budget_is_shared_and_bounds_chunks():
         assert runner.workers == 1 and runner.memory_per_task == pytest.approx(8e8)
     spec = Spec(("DATA",), "wgrid", make_grid(16.0, 180.0), 30.0, 180.0, 1e-6, 1, None, None)
     nchan = 50
-    # what a task holds: its partial grid (measured on a real accumulator after gridding
-    # one sample) and per row and channel the four correlations with weights and flags
-    # (4 x 13 B), three Stokes copies (3 x 4 x 16 B) and three float64 weight arrays
-    from msleak.ps.gridding import make_accumulator
-
-    acc = make_accumulator("wgrid", spec.grid, 150e6 + 195312.5 * np.arange(nchan))
-    acc.add(np.array([[10.0, 5.0, 1.0]]), np.ones((4, 1, nchan), complex), np.ones((1, nchan)))
-    if hasattr(acc, "flush"):
-        acc.flush()
-    fixed = sum(x.nbytes for x in (acc.dirty, acc.natural.sum_w))
-    per_row = nchan * (4 * 13 + 3 * 4 * 16 + 3 * 8)
+    # the most rows whose working set (what tasks and this process hold, checked against
+    # traced allocations in tests/test_grid_memory.py) fits; four tasks share the budget
     for budget in (2e8, 8e8):
-        rows = rows_for_memory(budget, nchan, spec)
-        used = fixed + rows * per_row
-        assert 0.9 * budget < used <= budget  # within the budget, and not much below it
+        rows = rows_for_memory(budget, nchan, spec, 4)
+        assert working_set(rows, nchan, spec, 4) <= budget < working_set(rows + 1, nchan,
+                                                                          spec, 4)
+        assert 2 * rows < rows_for_memory(budget, nchan, spec, 1)

@@ -58,12 +58,13 @@ from msleak.ps.gridding import Gridder
 @click.option("--beam-fwhm", "beam_fwhm", type=float, default=None, metavar="DEG",
               help="With --image in Jy/beam without BMAJ/BMIN: the restoring beam FWHM (deg).")
 @click.option("--chunk-rows", type=click.IntRange(min=1), default=None, metavar="N",
-              help="MS rows per chunk task (bounds memory, about chunk_rows x nchan x 270 "
-              "bytes per task) [default: 2 million samples (rows x channels), within "
-              "--memory-limit].")
+              help="MS rows per chunk task (bounds memory: per task about chunk_rows x nchan "
+              "x (110 + 33 x columns) bytes, docs/grid.md) [default: 2 million samples "
+              "(rows x channels), within --memory-limit].")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
-              help="Working-set budget shared by the chunks gridded at the same time (per "
-              "worker process with a scheduler address); lowers --chunk-rows if needed.")
+              help="Working-set budget of the chunks gridded at the same time and of the "
+              "grids and samples this process sums (per worker process with a scheduler "
+              "address); lowers --chunk-rows, then the chunks at a time, if needed.")
 @click.option("--epsilon", type=float, default=1e-6, show_default=True, metavar="X",
               help="wgrid accuracy (relative, ducc0).")
 @click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,

@@ -199,6 +199,7 @@ class Runner:
                 results = dask.compute(*tasks, scheduler=self.kind, pool=self.pool,
                                        num_workers=self.workers, optimize_graph=False)
             yield from zip(batch, results)
+            del results  # not kept while the next batch runs
 
     def _map_distributed(self, func, jobs, shared, window):
         from distributed import KilledWorker

@@ -20,7 +20,8 @@ from msleak.errors import InputError
 
 __all__ = [
     "Gridder", "UVGrid", "make_grid", "stokes_weights",
-    "CellAccumulator", "WGridAccumulator", "make_accumulator", "GRIDDER_DESCRIPTIONS",
+    "CellAccumulator", "WGridAccumulator", "make_accumulator", "accumulator_bytes",
+    "GRIDDER_DESCRIPTIONS",
     "MASK_FRACTION", "BOX_FACTOR", "response_profile", "gridder_response", "image_taper",
     "airy_power", "primary_fwhm_deg", "beam_area_model", "response_attrs",
 ]
@@ -168,8 +169,9 @@ def stokes_weights(weight: np.ndarray, flags: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    weight : (row, chan, corr) float
-        Per-correlation weights (inverse variances, WEIGHT_SPECTRUM or WEIGHT broadcast).
+    weight : (row, chan, corr) or (row, 1, corr) float
+        Per-correlation weights (inverse variances: WEIGHT_SPECTRUM, or WEIGHT for every
+        channel).
     flags : (row, chan, corr) bool
         True where a correlation is flagged; a sample with any flagged correlation is
         dropped for every Stokes parameter (each mixes two correlations).
@@ -188,6 +190,20 @@ def stokes_weights(weight: np.ndarray, flags: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(out), out, 0.0)
 
 
+def _stokes(corr: np.ndarray, to_stokes: np.ndarray) -> np.ndarray:
+    """(stokes, ...) complex128 ``to_stokes @ corr`` of correlations (..., corr); numpy's
+    own loops, not BLAS, whose threads would compete with the gridder's."""
+    return np.einsum("...c,sc->s...", corr, to_stokes)
+
+
+def _hermitian_sum(idx: np.ndarray, x: np.ndarray, size: int) -> np.ndarray:
+    """(size,) complex sums of ``x`` at the first half of the flat cells ``idx`` and of
+    its conjugate at the second half (the mirror cells)."""
+    re = np.concatenate([x.real, x.real])
+    im = np.concatenate([x.imag, -x.imag])
+    return np.bincount(idx, re, minlength=size) + 1j * np.bincount(idx, im, minlength=size)
+
+
 class CellAccumulator:
     """Nearest-cell accumulation of ``sum w V`` and ``sum w`` over row chunks, for one or
     several visibility sets (e.g. MS columns) on the same samples.
@@ -201,6 +217,9 @@ class CellAccumulator:
     nsets : int
         Visibility sets sharing the samples' coordinates and weights; each sample's cell
         is found once for all of them.
+    to_stokes : (stokes, corr) complex, optional
+        Given: :meth:`add` takes correlations and forms the Stokes visibilities
+        ``corr @ to_stokes.T`` one set at a time.
 
     Attributes
     ----------
@@ -209,12 +228,14 @@ class CellAccumulator:
     sum_w : (set, chan, v, u) float
     """
 
-    def __init__(self, grid: UVGrid, nchan: int, nstokes: int = 4, nsets: int = 1):
+    def __init__(self, grid: UVGrid, nchan: int, nstokes: int = 4, nsets: int = 1,
+                 to_stokes: np.ndarray | None = None):
         g = grid.size
         self.grid = grid
         self.nchan = nchan
         self.nstokes = int(nstokes)
         self.nsets = int(nsets)
+        self.to_stokes = None if to_stokes is None else np.asarray(to_stokes, np.complex128)
         self.sum_wv = np.zeros((self.nsets * self.nstokes, nchan, g, g), dtype=np.complex128)
         self.sum_w = np.zeros((self.nsets, nchan, g, g), dtype=np.float64)
 
@@ -237,7 +258,8 @@ class CellAccumulator:
         u_lambda, v_lambda : (row, chan) float
             Coordinates in wavelengths.
         vis : (stokes, row, chan) or (set, stokes, row, chan) complex
-            Stokes visibilities, Jy.
+            Stokes visibilities, Jy; with ``to_stokes``: correlations (set, row, chan,
+            corr).
         wgt : (row, chan) float
             Natural weights, shared by the sets; 0 drops a sample (flagged or outside
             the uv range).
@@ -245,25 +267,30 @@ class CellAccumulator:
             False drops a sample from one set only. Default: a sample is dropped from a
             set when one of its Stokes visibilities there is not finite.
         """
-        vis = np.reshape(vis, (self.nsets, self.nstokes) + np.shape(wgt))
-        if good is None:
-            good = np.isfinite(vis).all(axis=1)
+        if self.to_stokes is None:
+            vis = np.reshape(vis, (self.nsets, self.nstokes) + np.shape(wgt))
+        else:
+            vis = np.reshape(vis, (self.nsets,) + np.shape(wgt) + (-1,))
         ok, flat, mirror = self._indices(u_lambda, v_lambda, wgt)
-        size, shape = self.sum_w[0].size, self.sum_w.shape[1:]
         idx = np.concatenate([flat[ok], mirror[ok]])
+        del flat, mirror
         w_ok = wgt[ok]
         for k in range(self.nsets):
-            keep = good[k][ok]
-            w = np.where(keep, w_ok, 0.0)
-            self.sum_w[k] += np.bincount(idx, np.concatenate([w, w]),
-                                         minlength=size).reshape(shape)
-            for s in range(self.nstokes):
-                x = np.where(keep, vis[k, s][ok], 0.0) * w
-                re = np.concatenate([x.real, x.real])
-                im = np.concatenate([x.imag, -x.imag])
-                self.sum_wv[k * self.nstokes + s] += (
-                    np.bincount(idx, re, minlength=size)
-                    + 1j * np.bincount(idx, im, minlength=size)).reshape(shape)
+            self._add_set(k, vis[k], None if good is None else good[k], ok, idx, w_ok)
+
+    def _add_set(self, k: int, vis: np.ndarray, good: np.ndarray | None, ok: np.ndarray,
+                 idx: np.ndarray, w_ok: np.ndarray) -> None:
+        """Add set ``k`` (its visibilities as :meth:`add` takes them) at the cells ``idx``
+        of its ``ok`` samples (and their mirrors), of weights ``w_ok``."""
+        if self.to_stokes is not None:
+            vis = _stokes(vis, self.to_stokes)
+        keep = (np.isfinite(vis).all(axis=0) if good is None else good)[ok]
+        w = np.where(keep, w_ok, 0.0)
+        size, shape = self.sum_w[0].size, self.sum_w.shape[1:]
+        self.sum_w[k] += np.bincount(idx, np.concatenate([w, w]), minlength=size).reshape(shape)
+        for s in range(self.nstokes):
+            self.sum_wv[k * self.nstokes + s] += _hermitian_sum(
+                idx, np.where(keep, vis[s][ok], 0.0) * w, size).reshape(shape)
 
     def result(self, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``(vis (stokes, chan, v, u) complex, weight (chan, v, u))`` of set ``index``,
@@ -275,23 +302,24 @@ class CellAccumulator:
         return vis, sum_w.copy()
 
     def merge(self, other: "CellAccumulator") -> "CellAccumulator":
-        out = CellAccumulator(self.grid, self.nchan, self.nstokes, self.nsets)
-        out.sum_wv = self.sum_wv + other.sum_wv
-        out.sum_w = self.sum_w + other.sum_w
-        return out
+        """Add ``other``'s sums to this accumulator (in place) and return it."""
+        self.sum_wv += other.sum_wv
+        self.sum_w += other.sum_w
+        return self
 
 
 class WGridAccumulator:
     """w-corrected gridding through ducc0 dirty images, accumulated over row chunks.
 
-    Buffers samples and grids them (per channel, into dirty images of the Stokes
-    visibilities and of unit visibilities) when ``buffer_samples`` (row x channel)
-    samples are waiting, when merged or when the result is asked for; also keeps
+    Buffers samples and grids them when ``buffer_samples`` (row x channel) samples are
+    waiting, when merged or when the result is asked for: per channel, the dirty images of
+    the Stokes visibilities and of unit visibilities are tapered, Fourier transformed and
+    read at the cell centres one by one, and only those cell values are summed. Also keeps
     nearest-cell natural weights (the ``weight`` output and the empty-cell mask). The
-    estimator: docs/grid.md. Several visibility sets (e.g. MS columns) on
-    the same samples share the buffering, the per-channel sample selection and, where
-    their weights agree, the dirty image of unit visibilities; each set's images are
-    exactly those of the set gridded alone.
+    estimator: docs/grid.md. Several visibility sets (e.g. MS columns) on the same samples
+    share the buffering, the per-channel sample selection and, where their weights agree,
+    the image of unit visibilities; each set's sums are exactly those of the set gridded
+    alone.
 
     Parameters
     ----------
@@ -304,14 +332,19 @@ class WGridAccumulator:
         ducc0 accuracy (relative, on the dirty image).
     nthreads : int
     buffer_samples : int
-        Samples (rows x channels) buffered before gridding (~100 bytes each per set).
+        Samples (rows x channels) buffered before gridding: 8 bytes each for the weights,
+        per set the visibilities as given and 1 byte of validity, 24 per row for uvw.
     nsets : int
         Visibility sets gridded together.
+    to_stokes : (stokes, corr) complex, optional
+        Given: :meth:`add` takes correlations, which wait in the buffer as given (e.g.
+        complex64, half the size of complex128 Stokes visibilities) and become the Stokes
+        visibilities ``corr @ to_stokes.T`` channel by channel when gridded.
     """
 
     def __init__(self, grid: UVGrid, freq: np.ndarray, nstokes: int = 4,
                  epsilon: float = 1e-6, nthreads: int = 1, buffer_samples: int = 2_000_000,
-                 nsets: int = 1):
+                 nsets: int = 1, to_stokes: np.ndarray | None = None):
         self.factor = BOX_FACTOR
         n = self.factor * grid.npix_image
         self.taper_image = image_taper(n)
@@ -323,8 +356,14 @@ class WGridAccumulator:
         self.nthreads = int(nthreads)
         self.buffer_samples = int(buffer_samples)
         self.nsets = int(nsets)
+        self._takes_correlations = to_stokes is not None
+        # Stokes visibilities are kept as (set, row, chan, stokes) views, "correlations"
+        # whose Stokes visibilities are themselves
+        self._to_stokes = (np.eye(self.nstokes, dtype=np.complex128) if to_stokes is None
+                           else np.asarray(to_stokes, np.complex128))
         self._npix = n
-        self._dirty: np.ndarray | None = None  # allocated at the first flush
+        self._centres = n // 2 + self.factor * np.arange(-grid.M, grid.M + 1)
+        self._cells: np.ndarray | None = None  # allocated at the first gridding
         self.natural = CellAccumulator(grid, self.nchan, nstokes=0, nsets=self.nsets)
         self._buffer: list = []
         self._nbuffer = 0
@@ -332,20 +371,6 @@ class WGridAccumulator:
     @property
     def npix(self) -> int:
         return self._npix
-
-    @property
-    def dirty(self) -> np.ndarray:
-        """(set, stokes + 1, chan, n, n) dirty images (the last one of each set: unit
-        visibilities)."""
-        if self._dirty is None:
-            n = self._npix
-            self._dirty = np.zeros((self.nsets, self.nstokes + 1, self.nchan, n, n),
-                                   dtype=np.float64)
-        return self._dirty
-
-    @dirty.setter
-    def dirty(self, value: np.ndarray) -> None:
-        self._dirty = value
 
     def add(self, uvw_m: np.ndarray, vis: np.ndarray, wgt: np.ndarray) -> None:
         """Add samples.
@@ -355,23 +380,42 @@ class WGridAccumulator:
         uvw_m : (row, 3) float
             uvw in metres, kernel sign convention (minus the MS's UVW).
         vis : (stokes, row, chan) or (set, stokes, row, chan) complex
-            Stokes visibilities, Jy; a sample with a non-finite one is dropped from its set.
+            Stokes visibilities, Jy; with ``to_stokes``: correlations (set, row, chan,
+            corr). A sample with a non-finite one is dropped from its set (with
+            ``to_stokes``, an invertible matrix, a non-finite correlation makes a Stokes
+            visibility non-finite).
         wgt : (row, chan) float
             Natural weights, shared by the sets; 0 drops a sample.
+
+        The rows with a weight wait in the buffer until gridded; when every row has one,
+        the arrays wait as given (uvw and weights in float64, Stokes visibilities in
+        complex128: not copied), so leave them unchanged.
         """
         uvw_m = np.asarray(uvw_m, dtype=np.float64)
         wgt = np.asarray(wgt, dtype=np.float64)
-        vis = np.reshape(np.asarray(vis, np.complex128), (self.nsets, self.nstokes) + wgt.shape)
-        good = np.isfinite(vis).all(axis=1)
+        vis = self._as_correlations(vis, wgt.shape)
+        good = np.empty((self.nsets,) + wgt.shape, bool)
+        for k in range(self.nsets):
+            good[k] = np.isfinite(vis[k]).all(axis=-1)
         scale = self.freq / SPEED_OF_LIGHT
-        self.natural.add(uvw_m[:, :1] * scale, uvw_m[:, 1:2] * scale, vis[:, :0], wgt, good)
+        self.natural.add(uvw_m[:, :1] * scale, uvw_m[:, 1:2] * scale,
+                         np.empty((self.nsets, 0) + wgt.shape, np.complex128), wgt, good)
         keep = (wgt > 0).any(axis=1)
         if not keep.any():
             return
-        self._buffer.append((uvw_m[keep], vis[:, :, keep], wgt[keep], good[:, keep]))
+        if not keep.all():
+            uvw_m, vis, wgt, good = uvw_m[keep], vis[:, keep], wgt[keep], good[:, keep]
+        self._buffer.append((uvw_m, vis, wgt, good))
         self._nbuffer += int(keep.sum()) * self.nchan
         if self._nbuffer >= self.buffer_samples:
             self.grid_buffer()
+
+    def _as_correlations(self, vis, shape: tuple) -> np.ndarray:
+        """``vis`` as given to :meth:`add`, viewed as (set, row, chan, corr)."""
+        if self._takes_correlations:
+            return np.reshape(np.asarray(vis), (self.nsets,) + shape + (-1,))
+        vis = np.reshape(np.asarray(vis, np.complex128), (self.nsets, self.nstokes) + shape)
+        return np.moveaxis(vis, 1, -1)
 
     def flush(self) -> None:
         """End-of-task hook: grid the buffer if it holds at least a quarter of
@@ -381,56 +425,61 @@ class WGridAccumulator:
             self.grid_buffer()
 
     def grid_buffer(self) -> None:
-        """Grid the buffered samples into the dirty images."""
+        """Grid the buffered samples into the cell sums, one channel at a time (the buffer
+        is not copied: each ducc0 call gathers its channel's samples)."""
         if not self._buffer:
             return
         try:
             from ducc0.wgridder import vis2dirty
         except ImportError as err:  # pragma: no cover - ducc0 is a dependency
             raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
-        uvw_m = np.concatenate([b[0] for b in self._buffer])
-        vis = np.concatenate([b[1] for b in self._buffer], axis=2)
-        wgt = np.concatenate([b[2] for b in self._buffer])
-        good = np.concatenate([b[3] for b in self._buffer], axis=1)
-        self._buffer, self._nbuffer = [], 0
+        buffer, self._buffer, self._nbuffer = self._buffer, [], 0
+        if self._cells is None:
+            g = self.grid.size
+            self._cells = np.zeros((self.nsets, self.nstokes + 1, self.nchan, g, g),
+                                   np.complex128)
         n, dl = self.npix, self.grid.pixel_rad
         for c in range(self.nchan):
-            plans: list = []  # (rows, ducc0 arguments, unit-visibility image) per row set
+            plans: list = []  # (row masks of the buffered blocks, ducc0 arguments, PSF cells)
             for k in range(self.nsets):
-                rows = np.flatnonzero((wgt[:, c] > 0) & good[k, :, c])
-                if rows.size == 0:
+                masks = [(wgt[:, c] > 0) & good[k, :, c] for _, _, wgt, good in buffer]
+                if not any(m.any() for m in masks):
                     continue
-                plan = next((p for p in plans if np.array_equal(p[0], rows)), None)
+                plan = next((p for p in plans if all(map(np.array_equal, p[0], masks))), None)
                 if plan is None:
-                    kw = dict(uvw=np.ascontiguousarray(uvw_m[rows]), freq=self.freq[c:c + 1],
-                              wgt=np.ascontiguousarray(wgt[rows, c:c + 1]), npix_x=n,
+                    w = np.concatenate([b[2][m, c] for b, m in zip(buffer, masks)])
+                    kw = dict(uvw=np.concatenate([b[0][m] for b, m in zip(buffer, masks)]),
+                              freq=self.freq[c:c + 1], wgt=w.reshape(-1, 1), npix_x=n,
                               npix_y=n, pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon,
                               do_wgridding=True, flip_w=True, divide_by_n=False,
                               nthreads=self.nthreads)
-                    psf = vis2dirty(vis=np.ones((rows.size, 1), np.complex128), **kw)
-                    plan = (rows, kw, psf)
+                    psf = vis2dirty(vis=np.ones((w.size, 1), np.complex128), **kw)
+                    plan = (masks, kw, self._at_cells(psf))
                     plans.append(plan)
                 _, kw, psf = plan
+                corr = np.concatenate([b[1][k, m, c] for b, m in zip(buffer, masks)])
+                stokes = _stokes(corr, self._to_stokes)
                 for s in range(self.nstokes):
-                    v = np.ascontiguousarray(vis[k, s, rows, c:c + 1])
-                    self.dirty[k, s, c] += vis2dirty(vis=v, **kw)
-                self.dirty[k, -1, c] += psf
+                    self._cells[k, s, c] += self._at_cells(
+                        vis2dirty(vis=stokes[s].reshape(-1, 1), **kw))
+                self._cells[k, -1, c] += psf
+
+    def _at_cells(self, image: np.ndarray) -> np.ndarray:
+        """(v, u) complex: the Fourier transform of the tapered (n, n) dirty ``image`` at
+        the cell centres."""
+        # D[ix, iy] with l = (ix - n/2) dl: F[u] = sum D exp(-2 pi i (u l + v m)) on a grid
+        # of cell / factor wavelengths; the cell centres are every factor-th point
+        f = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(image * self.taper_image)))
+        return f[np.ix_(self._centres, self._centres)].T
 
     def numerators(self, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``(N (stokes, chan, v, u), Ntilde (chan, v, u))`` of set ``index``, complex, on
         the output grid (unnormalised: one sample of weight w at a cell centre gives
         Ntilde = w sum(R) / 2 there)."""
         self.grid_buffer()
-        g, n, M = self.grid.size, self.npix, self.grid.M
-        # D[ix, iy] with l = (ix - n/2) dl: F[u] = sum D exp(-2 pi i (u l + v m)) on a grid
-        # of cell / factor wavelengths; the cell centres are every factor-th point
-        f = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(self.dirty[index] * self.taper_image,
-                                                         axes=(-2, -1))),
-                            axes=(-2, -1))
-        idx = n // 2 + self.factor * np.arange(-M, M + 1)
-        f = f[..., idx, :][..., idx]
-        assert f.shape[-1] == g
-        f = np.swapaxes(f, -1, -2)  # (..., u, v) -> (..., v, u)
+        g = self.grid.size
+        f = (np.zeros((self.nstokes + 1, self.nchan, g, g), np.complex128)
+             if self._cells is None else self._cells[index].copy())
         return f[:-1], f[-1]
 
     def result(self, index: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -450,25 +499,44 @@ class WGridAccumulator:
         return vis, np.where(ok, natural, 0.0)
 
     def merge(self, other: "WGridAccumulator") -> "WGridAccumulator":
-        out = WGridAccumulator(self.grid, self.freq, self.nstokes, self.epsilon,
-                               self.nthreads, self.buffer_samples, self.nsets)
-        if self._dirty is not None or other._dirty is not None:
-            out.dirty = (self._dirty if self._dirty is not None else 0.0) + (
-                other._dirty if other._dirty is not None else 0.0)
-        out.natural = self.natural.merge(other.natural)
-        out._buffer = self._buffer + other._buffer
-        out._nbuffer = self._nbuffer + other._nbuffer
-        if out._nbuffer >= out.buffer_samples:
-            out.grid_buffer()
-        return out
+        """Move ``other``'s sums and buffered samples into this accumulator (``other`` is
+        left without them) and return it."""
+        if other._cells is not None:
+            if self._cells is None:
+                self._cells = other._cells
+            else:
+                self._cells += other._cells
+        self.natural.merge(other.natural)
+        self._buffer += other._buffer
+        self._nbuffer += other._nbuffer
+        other._cells, other._buffer, other._nbuffer = None, [], 0
+        if self._nbuffer >= self.buffer_samples:
+            self.grid_buffer()
+        return self
 
 
 def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
-                     epsilon: float = 1e-6, nthreads: int = 1, nsets: int = 1):
-    """A fresh accumulator of the named gridder for ``nsets`` visibility sets."""
+                     epsilon: float = 1e-6, nthreads: int = 1, nsets: int = 1,
+                     buffer_samples: int = 2_000_000, to_stokes: np.ndarray | None = None):
+    """A fresh accumulator of the named gridder for ``nsets`` visibility sets, taking
+    correlations when ``to_stokes`` is given (``epsilon``, ``nthreads`` and
+    ``buffer_samples``: ``wgrid`` only)."""
     if gridder == "cell":
-        return CellAccumulator(grid, len(freq), nsets=nsets)
+        return CellAccumulator(grid, len(freq), nsets=nsets, to_stokes=to_stokes)
     if gridder == "wgrid":
-        return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, nsets=nsets)
+        return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, nsets=nsets,
+                                buffer_samples=buffer_samples, to_stokes=to_stokes)
     raise InputError(f"unknown gridder {gridder!r}: use 'wgrid' or 'cell'")
+
+
+def accumulator_bytes(gridder: Gridder, grid: UVGrid, nchan: int, nsets: int = 1) -> int:
+    """Bytes of the arrays an accumulator of ``nsets`` sets and ``nchan`` channels holds
+    once it has gridded: complex128 cells per Stokes parameter (and, for ``wgrid``, of
+    unit visibilities), float64 natural weights; for ``wgrid`` also its float64 taper of
+    the image box."""
+    _check_gridder(gridder)
+    if gridder == "cell":
+        return nsets * nchan * grid.size ** 2 * (4 * 16 + 8)
+    return (nsets * nchan * grid.size ** 2 * (5 * 16 + 8)
+            + 8 * (BOX_FACTOR * grid.npix_image) ** 2)
 
