@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from msleak.errors import MsleakError
+from msleak.study import steps
 from msleak.study.steps import Step, StepRunner
 
 
@@ -33,6 +34,18 @@ def test_skip_rerun_overwrite(tmp_path):
     assert len(calls) == 3
     out.unlink()
     assert StepRunner(tmp_path).run(step, _writer(calls)) is True        # output missing
+
+
+def test_another_msleak_version_reruns(tmp_path, monkeypatch):
+    out = tmp_path / "out.txt"
+    step = Step("copy", ["copy", str(out)], outputs=[out])
+    calls = []
+    assert StepRunner(tmp_path).run(step, _writer(calls)) is True
+    assert StepRunner(tmp_path).run(step, _writer(calls)) is False
+    monkeypatch.setattr(steps, "MSLEAK_VERSION", "0.0.0-other")
+    assert StepRunner(tmp_path).run(step, _writer(calls)) is True        # made by another msleak
+    assert StepRunner(tmp_path).run(step, _writer(calls)) is False
+    assert len(calls) == 2
 
 
 def test_upstream_step_change_propagates(tmp_path):

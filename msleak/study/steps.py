@@ -2,8 +2,8 @@
 
 A step is one msleak command line with declared inputs and outputs. It is skipped when
 its outputs exist and the fingerprint of its command, its inputs (size and modification
-time of every file) and the earlier steps it names in ``after`` equals the one recorded
-in ``OUTDIR/.msleak-steps.json`` when the outputs were made.
+time of every file), the earlier steps it names in ``after`` and the msleak version
+equals the one recorded in ``OUTDIR/.msleak-steps.json`` when the outputs were made.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+from msleak import __version__ as MSLEAK_VERSION
 from msleak.errors import MsleakError
 
 __all__ = ["Step", "StepRunner"]
@@ -76,8 +77,8 @@ class StepRunner:
     def fingerprint(self, step: Step) -> str:
         upstream = [self.state.get(name, {}).get("fingerprint", "never-run")
                      for name in step.after]
-        blob = json.dumps([step.args, [_fingerprint_path(p) for p in step.inputs], upstream],
-                          default=str)
+        blob = json.dumps([step.args, [_fingerprint_path(p) for p in step.inputs], upstream,
+                           MSLEAK_VERSION], default=str)
         return hashlib.sha256(blob.encode()).hexdigest()
 
     def run(self, step: Step, invoke) -> bool:
