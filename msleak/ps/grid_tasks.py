@@ -232,8 +232,12 @@ def _weighted_rows(inp: Input, spec: Spec, c: dict, stats: dict) -> tuple:
     keep = cross & (b_m * scale.max() >= uv_min) & (b_m * scale.min() <= uv_max)
     wcol = inp.wcol
     nrow, ncorr = cross.size, len(inp.layout.slots)
-    wcorr = (c.pop(wcol) if wcol == "WEIGHT_SPECTRUM" else c.pop(wcol)[:, None, :] if wcol
-             else np.ones((nrow, 1, ncorr), np.float32))
+    if wcol == "WEIGHT_SPECTRUM":
+        wcorr = c.pop(wcol)
+    elif wcol == "WEIGHT":  # one weight per correlation, for every channel
+        wcorr = c.pop(wcol)[:, None, :]
+    else:
+        wcorr = np.ones((nrow, 1, ncorr), np.float32)
     flags = c.pop("FLAG")
     wgt = np.empty((nrow, nchan))
     for b in _blocks(nrow, nchan):

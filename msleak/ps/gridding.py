@@ -441,8 +441,9 @@ class WGridAccumulator:
         n, dl = self.npix, self.grid.pixel_rad
         for c in range(self.nchan):
             plans: list = []  # (row masks of the buffered blocks, ducc0 arguments, PSF cells)
+            weighted = [wgt[:, c] > 0 for _, _, wgt, _ in buffer]
             for k in range(self.nsets):
-                masks = [(wgt[:, c] > 0) & good[k, :, c] for _, _, wgt, good in buffer]
+                masks = [w & good[k, :, c] for w, (_, _, _, good) in zip(weighted, buffer)]
                 if not any(m.any() for m in masks):
                     continue
                 plan = next((p for p in plans if all(map(np.array_equal, p[0], masks))), None)
