@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -81,6 +83,43 @@ def test_fitted_itrf_map_matches_casacore():
         fitted = itrf_map(t, u)(u)
         exact = exact_j2000_to_itrf(t, ra.ravel(), dec.ravel())
         assert np.linalg.norm(fitted - exact, axis=1).max() < 1e-8
+
+
+@pytest.mark.parametrize("field", ["3c196", "ncp"])
+def test_jones_factors_multiply_to_the_jones_matrices(beams, lofar_mss, field):
+    """Every HBA field has the one element response: J_p = S_p E, as :meth:`jones` gives."""
+    fast, direct = beams[field]
+    ra, dec = _grid(fast)
+    times = read_times(lofar_mss[field])[:2]
+    freq = read_spectral_windows(lofar_mss[field])[0].freq
+    factors = fast.jones_factors(times, freq, ra, dec)
+    assert factors.element.shape[0] == 1 and not factors.group.any()
+    jones = fast.jones(times, freq, ra, dec)
+    np.testing.assert_allclose(factors.full(), jones, rtol=0, atol=1e-12 * np.abs(jones).max())
+    assert _max_rel(factors.full(), direct.jones(times, freq, ra, dec)) < 1e-5
+
+
+def test_stations_with_fields_of_two_element_groups(beams):
+    """A station whose fields are in two groups has no factors, and its Jones matrix sums
+    the groups: with both groups the same response it equals the one-group result."""
+    fast, _ = beams["ncp"]
+    ra, dec = _grid(fast, npix=3)
+    times, freq = [4.86234e9], [150e6, 152e6]
+    joined = copy.copy(fast)  # stations 0 and 1 as the two fields of station 0
+    joined._field_station = np.where(fast._field_station == 1, 0, fast._field_station)
+    joined._field_scale = np.where(joined._field_station == 0, 0.5, fast._field_scale)
+    split = copy.copy(joined)  # the same, station 1's old field in a second, equal group
+    split._group_axes = fast._group_axes * 2
+    split._group_response = fast._group_response * 2
+    split._field_group = np.where(fast._field_station == 1, 1, fast._field_group)
+    assert joined.jones_factors(times, freq, ra, dec, stations=[0, 2]) is not None
+    assert split.jones_factors(times, freq, ra, dec, stations=[0, 2]) is None
+    one = joined.jones(times, freq, ra, dec, stations=[0, 2])
+    two = split.jones(times, freq, ra, dec, stations=[0, 2])
+    np.testing.assert_allclose(two, one, rtol=0, atol=1e-12 * np.abs(one).max())
+    both = fast.jones(times, freq, ra, dec, stations=[0, 1])
+    np.testing.assert_allclose(one[0], both.mean(axis=0), rtol=0,
+                               atol=1e-12 * np.abs(one).max())
 
 
 def test_phase_centre_correction(beams):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from msleak.beam.base import JonesFactors
 from msleak.conventions import stokes_to_correlations_matrix
 from msleak.predict import kernels as K
 from msleak.predict.chunks import plan_chunks
@@ -65,6 +66,23 @@ def test_gram_matches_direct_sum(dtype, rtol):
     ref = _direct(jones, None, xyz, lmn1, freq, iquv)
     assert v.dtype == dtype
     assert np.abs(v - ref).max() <= rtol * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("dtype,rtol", [(np.complex128, 1e-10), (np.complex64, 2e-5)])
+def test_factored_jones_match_direct_sum_of_their_product(dtype, rtol):
+    """J_p = S_p E_g(p) with two element groups and a broadcast time axis of E."""
+    rng = np.random.default_rng(11)
+    xyz, lmn1, freq, iquv, _ = _setup(rng)
+    scalar = rng.normal(size=(4, 2, 3, 5)) + 1j * rng.normal(size=(4, 2, 3, 5))
+    element = rng.normal(size=(2, 1, 3, 5, 2, 2)) + 1j * rng.normal(size=(2, 1, 3, 5, 2, 2))
+    factors = JonesFactors(scalar.astype(dtype), element.astype(dtype), np.array([0, 1, 1, 0]))
+    w, sign = K.brightness_factors(iquv)
+    v = K.gram_to_matrix(K.predict_gram(factors, xyz, lmn1, freq, w, sign, dtype=dtype))
+    product = scalar[..., None, None] * element[[0, 1, 1, 0]]
+    ref = _direct(product, None, xyz, lmn1, freq, iquv)
+    assert np.abs(v - ref).max() <= rtol * np.abs(ref).max()
+    np.testing.assert_array_equal(factors.full(),
+                                  factors.scalar[..., None, None] * factors.element[[0, 1, 1, 0]])
 
 
 def test_left_correction_irregular_channels_and_broadcast_beam():

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from msleak.beam.lofar_fast import LofarFastBeam
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.predict import chunks
@@ -129,6 +130,9 @@ class _StandInBeam:
         assert not centre_correction  # msleak applies J(s0)^-1 itself
         return _jones_fn(stations, time_mjd_s, freq_hz, ra, dec).astype(dtype)
 
+    def jones_factors(self, *args, **kwargs):
+        return None  # not a factored beam
+
 
 def test_per_station_beam_and_centre_correction_match_direct_sum(small_lofar_ms, tmp_path,
                                                                  monkeypatch):
@@ -182,6 +186,27 @@ def test_full_beam_source_at_centre_with_correction_equals_unbeamed(small_lofar_
     run_predict(small_lofar_ms, sky, beam="everybeam", progress=False, column="RAW",
                 centre_correction=False)
     assert np.abs(_col(small_lofar_ms, "RAW") - unbeamed).max() > 1e-2 * np.abs(unbeamed).max()
+
+
+@pytest.mark.parametrize("centre_correction", [True, False])
+def test_lofar_beam_factors_give_the_visibilities_of_its_jones(small_lofar_ms, tmp_path,
+                                                               monkeypatch, centre_correction):
+    """Predict uses the LOFAR beam as J_p = S_p E (array factor times element response);
+    the visibilities equal those of its full Jones matrices (computed in complex128, the
+    column stores complex64: one rounding apart)."""
+    ra0, dec0 = _phase_centre(small_lofar_ms)
+    rng = np.random.default_rng(21)
+    ra, dec = _offsets_to_radec(ra0, dec0, *rng.uniform(-0.06, 0.06, (2, 6)))
+    sky = _write_sky(tmp_path / "f.skymodel",
+                     [(ra[k], dec[k], *rng.normal(0, 1, 4)) for k in range(6)])
+    kw = dict(beam="everybeam", double=True, progress=False,
+              centre_correction=centre_correction)
+    run_predict(small_lofar_ms, sky, column="FACTORED", **kw)
+    monkeypatch.setattr(LofarFastBeam, "_jones_factors", lambda self, *args: None)
+    run_predict(small_lofar_ms, sky, column="FULL_JONES", **kw)
+    factored, full = _col(small_lofar_ms, "FACTORED"), _col(small_lofar_ms, "FULL_JONES")
+    assert np.abs(full).max() > 0.1
+    assert np.abs(factored - full).max() <= 2e-7 * np.abs(full).max()
 
 
 # ----------------------------------------------------------------------------- columns

@@ -52,6 +52,9 @@ class _CountingBeam:
         self.ndir.append(len(ra))
         return _jones_fn(stations, time_mjd_s, freq_hz, ra, dec).astype(dtype)
 
+    def jones_factors(self, *args, **kwargs):
+        return None  # not a factored beam
+
 
 def _radec(ms, offsets_deg):
     """(ra, dec) of points at (dl, dm) degrees from the phase centre (SIN projection)."""

@@ -18,15 +18,15 @@ from __future__ import annotations
 
 import abc
 import logging
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
 from msleak.beam.lofar_kernels import apply_left_inverse
 from msleak.errors import InputError
 
-__all__ = ["BeamName", "BeamModel", "IdentityBeam", "invert_2x2", "BEAM_NAMES",
-           "BeamUnavailable"]
+__all__ = ["BeamName", "BeamModel", "IdentityBeam", "JonesFactors", "invert_2x2",
+           "BEAM_NAMES", "BeamUnavailable"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +67,33 @@ def invert_2x2(j: np.ndarray, *, rcond: float = 1e-12) -> tuple[np.ndarray, np.n
     inv[..., 1, 1] = j[..., 0, 0] / safe
     inv[singular] = 0
     return inv, singular
+
+
+class JonesFactors(NamedTuple):
+    """Beam Jones matrices as a scalar per station times a matrix per element group:
+    ``J[p, t, c, k] = scalar[p, t, c, k] * element[group[p], t, c, k]``.
+
+    The form of array beams whose stations share one element response (LOFAR HBA):
+    the scalar is the station's array factor. Axes 0-2 of ``scalar`` and 1-2 of
+    ``element`` may have length 1 (broadcast).
+
+    Attributes
+    ----------
+    scalar : (nstation, ntime, nchan, ndir) complex
+    element : (ngroup, ntime, nchan, ndir, 2, 2) complex
+        Rows: feeds; columns: sky (North, East), as :meth:`BeamModel.jones`.
+    group : (nstation,) int
+        Element group of each station.
+    """
+
+    scalar: np.ndarray
+    element: np.ndarray
+    group: np.ndarray
+
+    def full(self, index=slice(None)) -> np.ndarray:
+        """The Jones matrices (nstation, ntime, nchan, ndir, 2, 2) of directions ``index``."""
+        element = self.element[..., index, :, :]
+        return self.scalar[..., index, None, None] * element[self.group]
 
 
 class BeamModel(abc.ABC):
@@ -149,6 +176,21 @@ class BeamModel(abc.ABC):
                         int(singular.sum()))
         apply_left_inverse(inv, both)  # in place; the centre column becomes the identity
         return both[..., :-1, :, :].astype(dtype, copy=False)
+
+    def jones_factors(self, time_mjd_s, freq_hz, ra, dec, *, stations=None,
+                      dtype=np.complex128) -> JonesFactors | None:
+        """The uncorrected :meth:`jones` as :class:`JonesFactors`, or None if the model's
+        stations do not factor so (the default); same parameters as :meth:`jones`."""
+        time, freq, ra, dec, stations = self._check(time_mjd_s, freq_hz, ra, dec, stations)
+        dtype = np.dtype(dtype)
+        if dtype.kind != "c":
+            raise InputError(f"beam: dtype must be complex, not {dtype}")
+        return self._jones_factors(time, freq, ra, dec, stations, dtype)
+
+    def _jones_factors(self, time: np.ndarray, freq: np.ndarray, ra: np.ndarray,
+                       dec: np.ndarray, stations: np.ndarray, dtype) -> JonesFactors | None:
+        """:meth:`jones_factors` on checked inputs; models that factor override it."""
+        return None
 
     def jones_centre(self, time_mjd_s, freq_hz, *, stations=None) -> np.ndarray:
         """Jones (nstation, ntime, nchan, 2, 2) towards the phase centre (uncorrected)."""

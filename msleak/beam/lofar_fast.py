@@ -22,10 +22,10 @@ import logging
 import numpy as np
 
 from msleak._everybeam import import_everybeam
-from msleak.beam.base import BeamModel
+from msleak.beam.base import BeamModel, JonesFactors
 from msleak.beam.coords import clip_pole, itrf_map, radec_to_unit, sky_basis
 from msleak.beam.lofar_array import LofarArray
-from msleak.beam.lofar_kernels import station_jones_kernel
+from msleak.beam.lofar_kernels import combine_jones, station_factors_kernel
 from msleak.errors import InputError
 
 __all__ = ["LofarFastBeam", "element_jones", "sky_rotation", "field_angles"]
@@ -136,7 +136,6 @@ class LofarFastBeam(BeamModel):
         nelem = max(len(f.element_offsets) for _, _, f in fields)
         self._field_station = np.array([i for i, _, _ in fields], dtype=np.int64)
         self._field_scale = np.array([1.0 / len(s.fields) for _, s, _ in fields])
-        self._field_refpos = np.array([f.origin - s.phase_reference for _, s, f in fields])
         self._field_up = np.array([f.axes[2] for _, _, f in fields])
         self._tile_pos = np.zeros((nfield, ntile, 3))
         self._tile_w = np.zeros((nfield, ntile))
@@ -150,7 +149,10 @@ class LofarFastBeam(BeamModel):
         for n, (_, s, f) in enumerate(fields):
             # EveryBeam dots positions and directions in the field frame: A x . A y
             metric = f.axes.T @ f.axes
-            self._tile_pos[n, :len(f.tile_offsets)] = f.tile_offsets @ metric
+            # the field phase reference factor exp(-i k (s0 - d).(origin - reference))
+            # joins the tile array factor: positions from the station phase reference
+            self._tile_pos[n, :len(f.tile_offsets)] = (f.tile_offsets @ metric + f.origin
+                                                       - s.phase_reference)
             enabled = f.tile_enabled.astype(float)
             if enabled.sum() == 0:
                 log.warning("station %s field %s has every tile flagged", s.name, f.name)
@@ -190,21 +192,46 @@ class LofarFastBeam(BeamModel):
         out = np.empty((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
         if out.size == 0:
             return out
+        factors = np.empty((stations.size, len(self._group_axes), freq.size, ra.size),
+                           np.complex128)
+        for it, t in enumerate(time):
+            ej = self._slot_factors(float(t), freq, ra, dec, stations, factors)
+            combine_jones(factors, ej, out[:, it])
+        return out
+
+    def _jones_factors(self, time, freq, ra, dec, stations, dtype):
+        groups = [np.unique(self._field_group[self._field_station == s]) for s in stations]
+        if any(g.size > 1 for g in groups):
+            return None  # a station whose fields have different element responses
+        group = np.array([g[0] if g.size else 0 for g in groups], dtype=np.int64)
+        ngroup = len(self._group_axes)
+        scalar = np.empty((stations.size, time.size, freq.size, ra.size), dtype)
+        element = np.zeros((ngroup, time.size, freq.size, ra.size, 2, 2), dtype)
+        per_group = (np.empty((stations.size, ngroup, freq.size, ra.size), dtype)
+                     if ngroup > 1 else None)
+        for it, t in enumerate(time):
+            target = scalar[:, it, None] if per_group is None else per_group
+            element[:, it] = self._slot_factors(float(t), freq, ra, dec, stations, target)
+            if per_group is not None:
+                scalar[:, it] = per_group[np.arange(stations.size), group]
+        return JonesFactors(scalar, element, group)
+
+    def _slot_factors(self, time: float, freq, ra, dec, stations, factors) -> np.ndarray:
+        """Array factors (nstation, ngroup, nchan, ndir) of one time slot, written into
+        ``factors``; returns the element Jones matrices (ngroup, nchan, ndir, 2, 2) (zero
+        for groups no station uses)."""
         per_station = [np.flatnonzero(self._field_station == s) for s in stations]
         slot_ptr = np.concatenate([[0], np.cumsum([len(f) for f in per_station])]).astype(np.int64)
         slot_fields = np.concatenate(per_station).astype(np.int64)
         uniform, df = _uniform_step(freq)
-        used_groups = np.unique(self._field_group[slot_fields])
-        for it, t in enumerate(time):
-            d, s0, t0, ncp = self._directions(float(t), ra, dec)
-            north, east = sky_basis(d, ncp)
-            ej = np.zeros((len(self._group_axes), freq.size, ra.size, 2, 2), complex)
-            for g in used_groups:
-                ej[g] = element_jones(self._group_response[g], self._group_axes[g], freq, d,
-                                      north, east)
-            station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr,
-                                 self._field_group,
-                                 self._field_layout, self._field_scale, self._field_refpos,
-                                 self._field_up, self._tile_pos, self._tile_w,
-                                 self._layout_pos, self._layout_w, ej, out[:, it])
-        return out
+        d, s0, t0, ncp = self._directions(time, ra, dec)
+        north, east = sky_basis(d, ncp)
+        ej = np.zeros((len(self._group_axes), freq.size, ra.size, 2, 2), complex)
+        for g in np.unique(self._field_group[slot_fields]):
+            ej[g] = element_jones(self._group_response[g], self._group_axes[g], freq, d,
+                                  north, east)
+        station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr,
+                               self._field_group, self._field_layout, self._field_scale,
+                               self._field_up, self._tile_pos,
+                               self._tile_w, self._layout_pos, self._layout_w, factors)
+        return ej

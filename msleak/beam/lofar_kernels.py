@@ -1,10 +1,11 @@
 """numba kernels of the fast LOFAR HBA station beam (pure functions on arrays).
 
-:func:`station_jones_kernel` gives the station Jones matrices of one time slot: per
-antenna field the field phase reference, the field (tile) array factor and the tile
-(element) array factor times the element Jones matrices that
-:mod:`msleak.beam.lofar_fast` computes, for ITRF unit directions and channel frequencies
-(Hz), with phases advanced channel to channel over a uniform band.
+:func:`station_factors_kernel` gives the array factors of the stations of one time slot:
+per antenna field the field phase reference, the field (tile) array factor and the tile
+(element) array factor, summed per group of fields that share an element response, for
+ITRF unit directions and channel frequencies (Hz), with phases advanced channel to channel
+over a uniform band. A station's Jones matrix is the sum over groups of its factor times
+the group's element Jones matrices (:mod:`msleak.beam.lofar_fast`; :func:`combine_jones`).
 :func:`apply_left_inverse` applies ``J(s0)^-1`` in place; :func:`sincos` is a
 branch-free polynomial sine/cosine that vectorises.
 
@@ -20,7 +21,7 @@ from numba import njit, prange
 
 from msleak.constants import SPEED_OF_LIGHT
 
-__all__ = ["station_jones_kernel", "sincos", "apply_left_inverse"]
+__all__ = ["station_factors_kernel", "combine_jones", "sincos", "apply_left_inverse"]
 
 # directions per parallel work item
 _BLOCK = 32
@@ -54,9 +55,9 @@ def sincos(x):
     return sgs * (s + sw * (c - s)), sgc * (c + sw * (s - c))
 
 
-@njit(cache=True, fastmath={"contract"})
+@njit(nogil=True, cache=True, fastmath={"contract"})
 def _accumulate(acc, delta, nb, positions, weights, freq, uniform, df, zr, zi, sr, si):
-    """acc[kl, c] = sum_j weights[j] exp(-2 pi i freq[c] delta[kl].positions[j] / c) for
+    """acc[c, kl] = sum_j weights[j] exp(-2 pi i freq[c] delta[kl].positions[j] / c) for
     the ``nb`` directions of a block, summed over j in order.
 
     ``zr, zi, sr, si`` are scratch arrays of at least (len(positions), nb) floats; the
@@ -67,11 +68,15 @@ def _accumulate(acc, delta, nb, positions, weights, freq, uniform, df, zr, zi, s
     k = -2.0 * math.pi / SPEED_OF_LIGHT
     f0 = freq[0]
     for j in range(n):
-        p0, p1, p2, wj = positions[j, 0], positions[j, 1], positions[j, 2], weights[j]
+        p0, p1, p2 = positions[j, 0], positions[j, 1], positions[j, 2]
         for kl in range(nb):
-            tau = k * (delta[kl, 0] * p0 + delta[kl, 1] * p1 + delta[kl, 2] * p2)
-            sr[j, kl] = tau  # the delay, kept for the non-uniform band
-            if uniform:
+            sr[j, kl] = k * (delta[kl, 0] * p0 + delta[kl, 1] * p1 + delta[kl, 2] * p2)
+    if uniform:
+        # a loop of its own, without the delays' products, so that sincos vectorises
+        for j in range(n):
+            wj = weights[j]
+            for kl in range(nb):
+                tau = sr[j, kl]
                 s, c = sincos(tau * f0)
                 zr[j, kl] = c * wj
                 zi[j, kl] = s * wj
@@ -99,14 +104,18 @@ def _accumulate(acc, delta, nb, positions, weights, freq, uniform, df, zr, zi, s
                     ar[kl] += c * wj
                     ai[kl] += s * wj
         for kl in range(nb):
-            acc[kl, ch] = complex(ar[kl], ai[kl])
+            acc[ch, kl] = complex(ar[kl], ai[kl])
 
 
-@njit(parallel=True, cache=True)
-def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, field_group,
-                         field_layout, field_scale, field_refpos, field_up, tile_pos, tile_w,
-                         layout_pos, layout_w, element_jones, out):
-    """Station Jones matrices of one time slot, written into ``out``.
+@njit(parallel=True, nogil=True, cache=True)
+def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, field_group,
+                           field_layout, field_scale, field_up, tile_pos, tile_w, layout_pos,
+                           layout_w, out):
+    """Array factors of the stations of one time slot per element group, written into ``out``.
+
+    Station ``i``'s Jones matrix is ``sum_g out[i, g] E_g`` with ``E_g`` the element Jones
+    matrices of group ``g`` (:func:`combine_jones`); ``out[i, g]`` sums the station's fields
+    of group ``g`` (zero if it has none).
 
     Parameters
     ----------
@@ -119,87 +128,94 @@ def station_jones_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, fi
     slot_fields, slot_ptr : int64 arrays
         The fields of output station ``i`` are ``slot_fields[slot_ptr[i]:slot_ptr[i + 1]]``.
     field_group : (nfield,) int64
-        Index into ``element_jones`` of the field's element response.
+        Element group of the field (axis 1 of ``out``).
     field_layout : (nfield,) int64
         Index into ``layout_pos`` of the field's tile element layout.
     field_scale : (nfield,) float64
         1 / number of fields of the station.
-    field_refpos : (nfield, 3) float64
-        Field centre minus station phase reference, m.
     field_up : (nfield, 3) float64
         Field r axis; directions with ``d . up < 0`` are below the horizon (zero response).
     tile_pos, tile_w : (nfield, ntile, 3), (nfield, ntile) float64
-        Tile offsets (m) and normalised weights (zero-padded).
+        Tile positions relative to the station phase reference (the field centre's offset
+        plus the tile's, m; the field phase reference factor is part of the tile array
+        factor) and normalised weights (zero-padded).
     layout_pos, layout_w : (nlayout, nelem, 3), (nlayout, nelem) float64
         Tile element offsets (m) and weights (1/16).
-    element_jones : (ngroup, nchan, ndir, 2, 2) complex128
-        Element Jones matrices, already in the sky (North, East) basis.
-    out : (nslot, nchan, ndir, 2, 2) complex64 or complex128
+    out : (nslot, ngroup, nchan, ndir) complex64 or complex128
         Output; every element is written.
     """
     ndir = d.shape[0]
     nchan = freq.size
     nslot = slot_ptr.size - 1
+    ngroup = out.shape[1]
     nlayout = layout_pos.shape[0]
     need = np.zeros(nlayout, np.bool_)
     for i in range(slot_fields.size):
         need[field_layout[slot_fields[i]]] = True
     nmax = max(tile_pos.shape[1], layout_pos.shape[1], 1)
-    one = np.ones(1)
     # blocks of directions, so that writes to ``out`` run along its contiguous axis
     nblock = (ndir + _BLOCK - 1) // _BLOCK
     for blk in prange(nblock):
         k0 = blk * _BLOCK
         nb = min(_BLOCK, ndir - k0)
-        af = np.empty((nb, nchan), np.complex128)
-        wf = np.empty((nb, nchan), np.complex128)
-        at = np.empty((nlayout, nb, nchan), np.complex128)
-        sst = np.empty((nb, nchan), np.complex128)
-        extra = np.empty((nchan, nb, 2, 2), np.complex128)
+        af = np.empty((nchan, nb), np.complex128)
+        at = np.empty((nlayout, nchan, nb), np.complex128)
+        sst = np.empty((ngroup, nchan, nb), np.complex128)
         zr = np.empty((nmax, nb))
         zi = np.empty((nmax, nb))
         sr = np.empty((nmax, nb))
         si = np.empty((nmax, nb))
         ds = np.empty((nb, 3))
+        weight = np.empty(nb)
         _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df,
                       at, ds, zr, zi, sr, si)
         for slot in range(nslot):
-            g0 = field_group[slot_fields[slot_ptr[slot]]]
-            sst[:, :] = 0.0
-            mixed = False
+            sst[:, :, :] = 0.0
             for i in range(slot_ptr[slot], slot_ptr[slot + 1]):
                 fi = slot_fields[i]
-                if field_group[fi] != g0 and not mixed:
-                    extra[:, :, :, :] = 0.0
-                    mixed = True
                 up = field_up[fi]
                 lay = field_layout[fi]
                 scale = field_scale[fi]
                 g = field_group[fi]
                 _accumulate(af, ds, nb, tile_pos[fi], tile_w[fi], freq, uniform, df,
                             zr, zi, sr, si)
-                _accumulate(wf, ds, nb, field_refpos[fi:fi + 1], one, freq, uniform, df,
-                            zr, zi, sr, si)
-                for kl in range(nb):
+                for kl in range(nb):  # the field's weight; zero below its horizon
                     k = k0 + kl
-                    if d[k, 0] * up[0] + d[k, 1] * up[1] + d[k, 2] * up[2] < 0.0:
-                        continue
-                    if g == g0:
-                        for c in range(nchan):
-                            sst[kl, c] += af[kl, c] * at[lay, kl, c] * wf[kl, c] * scale
-                    else:
-                        for c in range(nchan):
-                            s = af[kl, c] * at[lay, kl, c] * wf[kl, c] * scale
-                            for a in range(2):
-                                for b in range(2):
-                                    extra[c, kl, a, b] += s * element_jones[g, c, k, a, b]
-            _write_slot(out[slot], element_jones[g0], sst, extra, mixed, k0, nb)
+                    above = d[k, 0] * up[0] + d[k, 1] * up[1] + d[k, 2] * up[2] >= 0.0
+                    weight[kl] = scale if above else 0.0
+                for c in range(nchan):
+                    for kl in range(nb):
+                        sst[g, c, kl] += af[c, kl] * at[lay, c, kl] * weight[kl]
+            for g in range(ngroup):
+                for c in range(nchan):
+                    for kl in range(nb):
+                        out[slot, g, c, k0 + kl] = sst[g, c, kl]
+
+
+@njit(parallel=True, nogil=True, cache=True)
+def combine_jones(factors, element_jones, out):
+    """``out[i, c, k] = sum_g factors[i, g, c, k] element_jones[g, c, k]``.
+
+    factors : (nslot, ngroup, nchan, ndir); element_jones : (ngroup, nchan, ndir, 2, 2);
+    out : (nslot, nchan, ndir, 2, 2).
+    """
+    nslot, ngroup, nchan, ndir = factors.shape
+    for idx in prange(nslot * nchan):
+        i = idx // nchan
+        c = idx % nchan
+        for k in range(ndir):
+            for a in range(2):
+                for b in range(2):
+                    v = 0j
+                    for g in range(ngroup):
+                        v += factors[i, g, c, k] * element_jones[g, c, k, a, b]
+                    out[i, c, k, a, b] = v
 
 
 @njit(inline="always")
 def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df, at, ds,
                   zr, zi, sr, si):
-    """Tile array factors ``at[layout, kl]`` of directions ``d[k0:k0 + nb]`` towards ``t0``,
+    """Tile array factors ``at[layout, c, kl]`` of directions ``d[k0:k0 + nb]`` towards ``t0``,
     and their offsets ``ds[kl] = s0 - d`` from the station beam-former direction."""
     dt = np.empty((nb, 3))
     for kl in range(nb):
@@ -212,22 +228,7 @@ def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, 
                         zr, zi, sr, si)
 
 
-@njit(inline="always")
-def _write_slot(out, element_jones, sst, extra, mixed, k0, nb):
-    """``out[c, k] = sst[kl, c] E[c, k] (+ extra[c, kl] for mixed element groups)``."""
-    for c in range(out.shape[0]):
-        for kl in range(nb):
-            k = k0 + kl
-            s = sst[kl, c]
-            for a in range(2):
-                for b in range(2):
-                    v = s * element_jones[c, k, a, b]
-                    if mixed:
-                        v += extra[c, kl, a, b]
-                    out[c, k, a, b] = v
-
-
-@njit(parallel=True, cache=True)
+@njit(parallel=True, nogil=True, cache=True)
 def apply_left_inverse(inv, jones):
     """``jones[s, t, c, d] = inv[s, t, c] @ jones[s, t, c, d]`` in place.
 

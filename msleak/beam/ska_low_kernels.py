@@ -33,7 +33,7 @@ __all__ = ["ska_low_station_kernel"]
 _BLOCK = 16
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
+@njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
 def _array_factor(tau, n, wx, wy, freq, uniform, df, zr, zi, sr, si, afx, afy):
     """afx[c], afy[c] = sum_j w_j exp(i tau_j freq[c]) for the X and Y weights.
 
@@ -76,7 +76,7 @@ def _array_factor(tau, n, wx, wy, freq, uniform, df, zr, zi, sr, si, afx, afy):
             afy[c] = complex(yr, yi)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, nogil=True, cache=True)
 def ska_low_station_kernel(d, s0, freq, uniform, df, positions, weights, nelem, up,
                            station_group, chan_set, element_jones, out):
     """Station Jones matrices of one time slot, written into ``out``.

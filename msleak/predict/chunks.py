@@ -23,7 +23,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from msleak.beam import load_beam
-from msleak.beam.base import invert_2x2
+from msleak.beam.base import JonesFactors, invert_2x2
 from msleak.conventions import CorrelationLayout
 from msleak.io import columns as colio
 from msleak.io.ms import iter_rows, read_used_antennas
@@ -201,7 +201,7 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
     and the kernel's scratch memory are the fixed part."""
     ndir_skies = sum(comp.skies[j].ndir for j in plan.active)
     fixed = (comp.nbytes + nrows * 28
-             + kernels.scratch_bytes(nstation, comp.ndir, ndir_skies, dtype))
+             + kernels.scratch_bytes(nstation, comp.ndir, ndir_skies, nchan, dtype))
     return plan_chunks(ntime, nchan, nstation, comp.ndir, rows_per_time, memory_per_task,
                        dtype.itemsize, has_beam, fixed, nsky=len(plan.active))
 
@@ -261,7 +261,7 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
         if off.any():
             for out, (index, sky) in zip(outs, skies):
                 out[off, c0:c1] = predict_rows(
-                    None if jones is None else jones[..., index, :, :], tidx[off], p[off],
+                    _directions_jones(jones, index), tidx[off], p[off],
                     q[off], uvw[off], sky.lmn1, freq[c0:c1], sky.iquv[:, c0:c1],
                     jones_left=left, dtype=dtype)
             add_time(timings, "per_baseline", tick)
@@ -271,20 +271,37 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,
           stations: np.ndarray, centre_correction: bool, dtype) -> tuple:
-    """Jones (nst, nt, nchan, ndir, 2, 2) towards every direction of ``comp`` and the
-    correction J(s0)^-1 (nst, nt, nchan, 2, 2) or None, from one beam call with the phase
-    centre appended; (None, None) without a beam or without directions."""
+    """Jones (nst, nt, nchan, ndir, 2, 2) towards every direction of ``comp``, as
+    :class:`JonesFactors` when the model gives them, and the correction J(s0)^-1
+    (nst, nt, nchan, 2, 2) or None, from one beam call with the phase centre appended;
+    (None, None) without a beam or without directions."""
     if beam_model is None or not comp.ndir:
         return None, None
-    full = beam_model.jones(times, freq, np.append(comp.ra, fmeta.ra),
-                            np.append(comp.dec, fmeta.dec), stations=stations, dtype=dtype)
+    ra, dec = np.append(comp.ra, fmeta.ra), np.append(comp.dec, fmeta.dec)
+    factors = beam_model.jones_factors(times, freq, ra, dec, stations=stations, dtype=dtype)
+    if factors is None:
+        full = beam_model.jones(times, freq, ra, dec, stations=stations, dtype=dtype)
+        jones, centre = full[..., :-1, :, :], full[..., -1, :, :]
+    else:
+        jones = JonesFactors(factors.scalar[..., :-1], factors.element[..., :-1, :, :],
+                             factors.group)
+        centre = factors.full(-1)
     left = None
     if centre_correction:
-        left, singular = invert_2x2(full[..., -1, :, :].astype(np.complex128))
+        left, singular = invert_2x2(centre.astype(np.complex128))
         if singular.any():
             log.warning("beam at the phase centre is singular for %d station/time/channel "
                         "samples; their corrected visibilities are zero", int(singular.sum()))
-    return full[..., :-1, :, :], left
+    return jones, left
+
+
+def _directions_jones(jones, index: np.ndarray) -> np.ndarray | None:
+    """The Jones matrices (nst, nt, nchan, len(index), 2, 2) of directions ``index``."""
+    if jones is None:
+        return None
+    if isinstance(jones, JonesFactors):
+        return jones.full(index)
+    return jones[..., index, :, :]
 
 
 def add_time(timings: dict, key: str, since: float) -> float:

@@ -21,6 +21,7 @@ import numba as nb
 import numpy as np
 from numba import types
 
+from msleak.beam.base import JonesFactors
 from msleak.conventions import LINEAR_TO_CIRCULAR_FEEDS
 from msleak.predict._blas import HERK_SYMBOLS, register_herk, single_threaded_blas
 from msleak.sky.sources import lmn
@@ -201,48 +202,69 @@ def _start_phases(xyz, t, lmn1, freq, c0, df, regular, phase, step, geo):
 
 
 @nb.njit(nogil=True, cache=True)
-def _station_a(a, phase, p, jones, have_jones, jp, jt, jc):
+def _station_a(a, phase, p, jones, jp, jt, jc):
     """A_p(s) = phase_p(s) J_p(s) (4 entries, row-major) of station p, every direction."""
     for s in range(a.shape[0]):
         e = phase[p, s]
-        if have_jones:
-            a[s, 0] = e * jones[jp, jt, jc, s, 0, 0]
-            a[s, 1] = e * jones[jp, jt, jc, s, 0, 1]
-            a[s, 2] = e * jones[jp, jt, jc, s, 1, 0]
-            a[s, 3] = e * jones[jp, jt, jc, s, 1, 1]
-        else:
-            a[s, 0] = e
-            a[s, 1] = 0j
-            a[s, 2] = 0j
-            a[s, 3] = e
+        a[s, 0] = e * jones[jp, jt, jc, s, 0, 0]
+        a[s, 1] = e * jones[jp, jt, jc, s, 0, 1]
+        a[s, 2] = e * jones[jp, jt, jc, s, 1, 0]
+        a[s, 3] = e * jones[jp, jt, jc, s, 1, 1]
 
 
 @nb.njit(nogil=True, cache=True)
-def _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap):
+def _fill_z(z, a, p, n2, c, ptr, cdir, wcol):
     """Rows 2p, 2p+1 of every computed sky's Z_r^T = (A_p W)^T at channel c.
 
     Z_r^T of sky r is a C-order (2 nst, 2 ndir_r) array = Fortran (2 ndir_r, 2 nst) from
-    offset 2 nst * 2 ptr[r] of z: the rows of one station are written contiguously."""
+    offset 2 nst * 2 ptr[r] of z: the rows of one station are written contiguously.
+    Column ``col`` (of all skies) is direction ``cdir[c, col]`` times the brightness factor
+    column ``wcol[c, col]``; unused columns (``cdir < 0``) are not written."""
     for r in range(ptr.shape[0] - 1):
         kmax = 2 * (ptr[r + 1] - ptr[r])
         row = n2 * 2 * ptr[r] + 2 * p * kmax
-        zx = z[row:row + kmax]
-        zy = z[row + kmax:row + 2 * kmax]
-        for j in range(ptr[r], ptr[r + 1]):
-            s = dirs[j]
-            col0 = colmap[c, j, 0]
-            col1 = colmap[c, j, 1]
-            a00, a01, a10, a11 = a[s, 0], a[s, 1], a[s, 2], a[s, 3]
-            if col0 >= 0:
-                w00 = w[j, c, 0, 0]
-                w10 = w[j, c, 1, 0]
-                zx[col0] = a00 * w00 + a01 * w10
-                zy[col0] = a10 * w00 + a11 * w10
-            if col1 >= 0:
-                w01 = w[j, c, 0, 1]
-                w11 = w[j, c, 1, 1]
-                zx[col1] = a00 * w01 + a01 * w11
-                zy[col1] = a10 * w01 + a11 * w11
+        col0 = 2 * ptr[r]
+        for k in range(kmax):
+            s = cdir[c, col0 + k]
+            if s < 0:
+                continue
+            w0 = wcol[c, col0 + k, 0]
+            w1 = wcol[c, col0 + k, 1]
+            z[row + k] = a[s, 0] * w0 + a[s, 1] * w1
+            z[row + kmax + k] = a[s, 2] * w0 + a[s, 3] * w1
+
+
+@nb.njit(nogil=True, cache=True)
+def _element_w(m, element, jt, jc, c, cdir, wcol):
+    """m[g, col] = E_g(s) wcol[c, col] for every element group g and used column."""
+    for g in range(m.shape[0]):
+        for col in range(m.shape[1]):
+            s = cdir[c, col]
+            if s < 0:
+                continue
+            w0 = wcol[c, col, 0]
+            w1 = wcol[c, col, 1]
+            m[g, col, 0] = (element[g, jt, jc, s, 0, 0] * w0
+                            + element[g, jt, jc, s, 0, 1] * w1)
+            m[g, col, 1] = (element[g, jt, jc, s, 1, 0] * w0
+                            + element[g, jt, jc, s, 1, 1] * w1)
+
+
+@nb.njit(nogil=True, cache=True)
+def _fill_z_factored(z, gs, m, p, n2, c, ptr, cdir):
+    """:func:`_fill_z` for J_p(s) = S_p(s) E_g(s): column ``col`` of station p is
+    ``gs[s] m[col]`` with ``gs = phase_p S_p`` and ``m`` = E_g W (:func:`_element_w`)."""
+    for r in range(ptr.shape[0] - 1):
+        kmax = 2 * (ptr[r + 1] - ptr[r])
+        row = n2 * 2 * ptr[r] + 2 * p * kmax
+        col0 = 2 * ptr[r]
+        for k in range(kmax):
+            s = cdir[c, col0 + k]
+            if s < 0:
+                continue
+            e = gs[s]
+            z[row + k] = e * m[col0 + k, 0]
+            z[row + kmax + k] = e * m[col0 + k, 1]
 
 
 @nb.njit(nogil=True, cache=True)
@@ -288,18 +310,23 @@ def _herks(z, n2, t, c, ptr, sky, boff, bstart, kpos, kneg, sptr, snap, gram):
 
 
 @nb.njit(parallel=True, nogil=True, cache=True)
-def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, colmap, sky,
-            boff, bstart, kpos, kneg, sptr, snap, gram):
+def _kernel(jones, factored, scalar, element, group, xyz, lmn1, freq, regular, block, ptr,
+            cdir, wcol, sky, boff, bstart, kpos, kneg, sptr, snap, gram):
     nt, nst = xyz.shape[0], xyz.shape[1]
     ndir = lmn1.shape[0]
     nchan = freq.shape[0]
     n2 = 2 * nst
     nblk = (nchan + block - 1) // block
+    # lengths of the beam's station, time and channel axes (1: broadcast)
+    if factored:
+        nbs, nbt, nbc = scalar.shape[0], scalar.shape[1], scalar.shape[2]
+    else:
+        nbs, nbt, nbc = jones.shape[0], jones.shape[1], jones.shape[2]
     for it in nb.prange(nt * nblk):
         t = it // nblk
         c0 = (it - t * nblk) * block
         c1 = min(nchan, c0 + block)
-        jt = t if jones.shape[1] > 1 else 0
+        jt = t if nbt > 1 else 0
         # phases direct at c0, then multiplied by a constant step per channel when the
         # channels are regular (else evaluated per channel)
         phase = np.empty((nst, ndir), dtype=np.complex128)
@@ -308,7 +335,10 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, co
         df = freq[c0 + 1] - freq[c0] if c1 - c0 > 1 else 0.0
         _start_phases(xyz, t, lmn1, freq, c0, df, regular, phase, step, geo)
         z = np.empty(n2 * 2 * ptr[ptr.shape[0] - 1], dtype=gram.dtype)
-        a = np.empty((ndir, 4), dtype=np.complex128)
+        a = np.empty((ndir if not factored else 0, 4), dtype=np.complex128)
+        gs = np.empty(ndir if factored else 0, dtype=np.complex128)
+        m = np.empty((element.shape[0] if factored else 0, cdir.shape[1], 2),
+                     dtype=np.complex128)
         for c in range(c0, c1):
             if c > c0:
                 for p in range(nst):
@@ -318,11 +348,19 @@ def _kernel(jones, have_jones, xyz, lmn1, freq, regular, block, dirs, ptr, w, co
                         else:
                             phase[p, s] = complex(math.cos(geo[p, s] * freq[c]),
                                                   math.sin(geo[p, s] * freq[c]))
-            jc = c if jones.shape[2] > 1 else 0
+            jc = c if nbc > 1 else 0
+            if factored:
+                _element_w(m, element, t if element.shape[1] > 1 else 0,
+                           c if element.shape[2] > 1 else 0, c, cdir, wcol)
             for p in range(nst):
-                _station_a(a, phase, p, jones, have_jones, p if jones.shape[0] > 1 else 0,
-                           jt, jc)
-                _fill_z(z, a, p, n2, c, dirs, ptr, w, colmap)
+                jp = p if nbs > 1 else 0
+                if factored:
+                    for s in range(ndir):
+                        gs[s] = phase[p, s] * scalar[jp, jt, jc, s]
+                    _fill_z_factored(z, gs, m[group[p]], p, n2, c, ptr, cdir)
+                else:
+                    _station_a(a, phase, p, jones, jp, jt, jc)
+                    _fill_z(z, a, p, n2, c, ptr, cdir, wcol)
             _herks(z, n2, t, c, ptr, sky, boff, bstart, kpos, kneg, sptr, snap, gram)
 
 
@@ -340,11 +378,13 @@ def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
 
     Parameters
     ----------
-    jones : (nstation | 1, ntime | 1, nchan | 1, ndir, 2, 2) complex or None
+    jones : (nstation | 1, ntime | 1, nchan | 1, ndir, 2, 2) complex, JonesFactors or None
         Beam Jones matrices in the linear (X, Y) basis (already centre-corrected if
-        wanted); size-1 axes broadcast. None means no beam (identity). A correction that
-        depends only on station, time and channel (J_p(s0)^-1) is better applied by
-        :func:`gather_rows` to the sum than here to every source.
+        wanted), or their factors J_p = S_p E_g(p) (:class:`msleak.beam.base.JonesFactors`,
+        cheaper: E W is formed once per element group, not per station); size-1 axes
+        broadcast. None means no beam (identity). A correction that depends only on
+        station, time and channel (J_p(s0)^-1) is better applied by :func:`gather_rows`
+        to the sum than here to every source.
     xyz : (ntime, nstation, 3) float64
         Per-station coordinates x_p (m) with uvw_pq = x_q - x_p (MS convention); the
         result is V_pq = sum_s J_p B_s J_q^H exp(+2 pi i uvw_pq . (l, m, n - 1) / lambda).
@@ -375,24 +415,25 @@ def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
     freq = np.ascontiguousarray(freq, dtype=np.float64)
     nt, nst = xyz.shape[:2]
     nchan = freq.size
-    jones_arr, have = _check_jones(jones, nst, nt, nchan, lmn1.shape[0], dtype)
+    beam = _check_jones(jones, nst, nt, nchan, lmn1.shape[0], dtype)
     packed = _pack_skies(skies, lmn1, nchan)
     gram = np.zeros((len(skies), nt, nchan, 2 * nst, 2 * nst), dtype=dtype)
     regular = _regular_spacing(freq)
     nthreads = nb.get_num_threads()
     block = max(1, min(nchan, -(-nt * nchan // (4 * nthreads)))) if regular else 1
     with single_threaded_blas():
-        _kernel(jones_arr, have, xyz, lmn1, freq, regular, block, *packed, gram)
+        _kernel(*beam, xyz, lmn1, freq, regular, block, *packed, gram)
     return gram
 
 
-def scratch_bytes(nstation: int, ndir: int, ndir_skies: int, dtype) -> int:
-    """Memory :func:`predict_grams` allocates besides its result (bytes, all threads):
-    per thread the phases of ``ndir`` directions, one station's A matrices, and the Z of
-    skies with ``ndir_skies`` directions in all."""
-    per_thread = (40 * nstation * ndir + 64 * ndir
+def scratch_bytes(nstation: int, ndir: int, ndir_skies: int, nchan: int, dtype) -> int:
+    """Memory :func:`predict_grams` allocates besides its result (bytes, all threads) for
+    skies with ``ndir_skies`` directions in all and at most ``nchan`` channels: their
+    factors in column order, and per thread the phases of ``ndir`` directions, one
+    station's A matrices (or, with factored Jones, one element group's E W) and their Z."""
+    per_thread = (40 * nstation * ndir + 64 * ndir + 64 * ndir_skies
                   + 4 * nstation * ndir_skies * np.dtype(dtype).itemsize)
-    return nb.get_num_threads() * per_thread
+    return nb.get_num_threads() * per_thread + 80 * nchan * ndir_skies
 
 
 def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
@@ -408,19 +449,44 @@ def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
     return predict_grams(jones, xyz, lmn1, freq, [(index, w, sign)], dtype=dtype)[0]
 
 
-def _check_jones(jones, nst: int, nt: int, nchan: int, ndir: int, dtype):
-    """(jones array, have_jones) for the kernel; a dummy identity when ``jones`` is None."""
+def _check_jones(jones, nst: int, nt: int, nchan: int, ndir: int, dtype) -> tuple:
+    """The kernel's beam arguments (jones, factored, scalar, element, group); without a
+    beam, factors of the identity."""
     if jones is None:
-        return np.zeros((1, 1, 1, 1, 2, 2), dtype=dtype), False
+        eye = np.zeros((1, 1, 1, ndir, 2, 2), dtype=dtype)
+        eye[..., 0, 0] = eye[..., 1, 1] = 1
+        jones = JonesFactors(np.ones((1, 1, 1, ndir), dtype=dtype), eye,
+                             np.zeros(nst, dtype=np.int64))
+    if isinstance(jones, JonesFactors):
+        scalar, element = np.asarray(jones.scalar), np.asarray(jones.element)
+        group = np.ascontiguousarray(jones.group, dtype=np.int64)
+        if scalar.ndim != 4 or scalar.shape[3] != ndir:
+            raise ValueError(f"jones.scalar has shape {scalar.shape}, expected "
+                             f"(nstation, ntime, nchan, {ndir})")
+        if element.ndim != 6 or element.shape[3:] != (ndir, 2, 2):
+            raise ValueError(f"jones.element has shape {element.shape}, expected "
+                             f"(ngroup, ntime, nchan, {ndir}, 2, 2)")
+        if group.shape != (nst,) or group.min() < 0 or group.max() >= element.shape[0]:
+            raise ValueError(f"jones.group must be {nst} indices into jones.element's "
+                             f"{element.shape[0]} groups")
+        _check_broadcast(scalar, (nst, nt, nchan), "jones.scalar")
+        _check_broadcast(element, (None, nt, nchan), "jones.element")
+        return np.zeros((1, 1, 1, 1, 2, 2), dtype=dtype), True, scalar, element, group
     jones_arr = np.asarray(jones)
     if jones_arr.ndim != 6 or jones_arr.shape[-2:] != (2, 2) or jones_arr.shape[3] != ndir:
         raise ValueError(f"jones has shape {jones_arr.shape}, expected "
                          f"(nstation, ntime, nchan, {ndir}, 2, 2)")
-    for axis, n in ((0, nst), (1, nt), (2, nchan)):
-        if jones_arr.shape[axis] not in (1, n):
-            raise ValueError(f"jones axis {axis} has length {jones_arr.shape[axis]}, "
+    _check_broadcast(jones_arr, (nst, nt, nchan), "jones")
+    return (jones_arr, False, np.zeros((1, 1, 1, 1), dtype=dtype),
+            np.zeros((1, 1, 1, 1, 2, 2), dtype=dtype), np.zeros(nst, dtype=np.int64))
+
+
+def _check_broadcast(arr: np.ndarray, lengths: tuple, name: str) -> None:
+    """Refuse an axis of ``arr`` whose length is neither 1 nor ``lengths`` (None: any)."""
+    for axis, n in enumerate(lengths):
+        if n is not None and arr.shape[axis] not in (1, n):
+            raise ValueError(f"{name} axis {axis} has length {arr.shape[axis]}, "
                              f"expected 1 or {n}")
-    return jones_arr, True
 
 
 def _pack_skies(skies, lmn1: np.ndarray, nchan: int) -> tuple:
@@ -447,16 +513,32 @@ def _pack_skies(skies, lmn1: np.ndarray, nchan: int) -> tuple:
     last = {k: boff[roots.index(r)] + prepared[k][3].size - 1 for k, r in parent.items()}
     nested = sorted(last, key=lambda k: (last[k], k))
     sptr = np.searchsorted([last[k] for k in nested], np.arange(boff[-1] + 1))
-    return (_concat(dirs, (0,), np.int64),
-            np.cumsum([0] + [d.size for d in dirs]).astype(np.int64),
-            _concat(w, (0, nchan, 2, 2), np.complex128),
-            np.concatenate([np.zeros((nchan, 0, 2), np.int32)] + [c for c, _, _ in layouts],
-                           axis=1),
+    ptr = np.cumsum([0] + [d.size for d in dirs]).astype(np.int64)
+    # every Z column's direction and brightness factor column, per channel
+    cdir = np.full((nchan, 2 * ptr[-1]), -1, dtype=np.int64)
+    wcol = np.zeros((nchan, 2 * ptr[-1], 2), dtype=np.complex128)
+    for r in range(len(dirs)):
+        _columns(layouts[r][0], dirs[r], w[r], 2 * ptr[r], cdir, wcol)
+    return (ptr, cdir, wcol,
             np.asarray(roots, dtype=np.int64), boff,
             _concat([np.concatenate([[0], e[:-1]]) for e in ends], (0,), np.int64),
             _concat([kp for _, kp, _ in layouts], (0, nchan), np.int64),
             _concat([kn for _, _, kn in layouts], (0, nchan), np.int64),
             sptr.astype(np.int64), np.asarray(nested, dtype=np.int64))
+
+
+@nb.njit(nogil=True, cache=True)
+def _columns(colmap, dirs, w, col0, cdir, wcol):
+    """cdir[c, col0 + colmap[c, j, e]] = dirs[j] and wcol[c, ...] = w[j, c, :, e] for
+    every kept eigenvector (colmap >= 0)."""
+    for c in range(colmap.shape[0]):
+        for j in range(colmap.shape[1]):
+            for e in range(2):
+                col = colmap[c, j, e]
+                if col >= 0:
+                    cdir[c, col0 + col] = dirs[j]
+                    wcol[c, col0 + col, 0] = w[j, c, 0, e]
+                    wcol[c, col0 + col, 1] = w[j, c, 1, e]
 
 
 def _concat(parts: list, empty_shape: tuple, dtype) -> np.ndarray:
