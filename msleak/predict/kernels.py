@@ -1,12 +1,15 @@
 """Measurement-equation kernels of predict: pure functions on arrays (numba + BLAS).
 
-The kernels compute V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i uvw_pq . (l, m, n - 1) / lambda)
+The kernels compute
+V_pq = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i uvw_pq . (l, m, n - 1) / lambda)
 with uvw_pq = x_q - x_p (antenna 2 minus antenna 1, the MS convention), factorised per
 station (x_p from :mod:`msleak.predict.stations`) and evaluated as BLAS ``herk`` per
-(time, channel), summed outwards in blocks of square rings (:func:`sky_blocks`).
+(time, channel), summed outwards in blocks of square rings (:func:`sky_blocks`). The beam
+is either full Jones matrices or factors J_p = S_p E_g (:class:`JonesFactors`).
 :func:`predict_grams` predicts several skies that share directions in one pass, each
-exactly as if run alone; a crop of another sky of the run is that sky's partial sum. All in the linear (X, Y) feed basis
-(:func:`linear_to_circular` converts); phases float64, matrices in the output precision.
+exactly as if run alone; a crop of another sky of the run is that sky's partial sum. All
+in the linear (X, Y) feed basis (:func:`linear_to_circular` converts); phases float64,
+matrices in the output precision.
 
 Sign convention, factorisation and sharing between skies: docs/predict.md and
 docs/science.md section 4.
@@ -364,7 +367,7 @@ def _kernel(jones, factored, scalar, element, group, xyz, lmn1, freq, regular, b
             _herks(z, n2, t, c, ptr, sky, boff, bstart, kpos, kneg, sptr, snap, gram)
 
 
-def predict_grams(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
+def predict_grams(jones: np.ndarray | JonesFactors | None, xyz: np.ndarray, lmn1: np.ndarray,
                   freq: np.ndarray, skies: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
                   dtype=np.complex64) -> np.ndarray:
     """Visibility matrices of all station pairs for several skies sharing directions.
@@ -436,7 +439,7 @@ def scratch_bytes(nstation: int, ndir: int, ndir_skies: int, nchan: int, dtype) 
     return nb.get_num_threads() * per_thread + 80 * nchan * ndir_skies
 
 
-def predict_gram(jones: np.ndarray | None, xyz: np.ndarray, lmn1: np.ndarray,
+def predict_gram(jones: np.ndarray | JonesFactors | None, xyz: np.ndarray, lmn1: np.ndarray,
                  freq: np.ndarray, w: np.ndarray, sign: np.ndarray,
                  dtype=np.complex64) -> np.ndarray:
     """:func:`predict_grams` of one sky whose directions are all of ``lmn1`` (in order).
