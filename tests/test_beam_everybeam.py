@@ -122,6 +122,27 @@ def test_stations_with_fields_of_two_element_groups(beams):
                                atol=1e-12 * np.abs(one).max())
 
 
+def test_one_element_group_per_station_factors_like_one_group(beams):
+    """Every field in its own group (as remote stations are): factors per station's own
+    group, not per group of the array, and the same Jones matrices as with one group."""
+    fast, _ = beams["3c196"]
+    ra, dec = _grid(fast, npix=3)
+    times, freq = [4.86234e9], [150e6, 152e6]
+    own = copy.copy(fast)
+    nfield = fast._field_group.size
+    own._group_axes = fast._group_axes * nfield
+    own._group_response = fast._group_response * nfield
+    own._field_group = np.arange(nfield)
+    factors = own.jones_factors(times, freq, ra, dec)
+    assert factors.scalar.shape == (fast.n_stations, 1, 2, ra.size)
+    assert factors.element.shape[0] == nfield
+    np.testing.assert_array_equal(factors.group, fast._field_station.argsort(kind="stable"))
+    one = fast.jones(times, freq, ra, dec)
+    np.testing.assert_allclose(factors.full(), one, rtol=0, atol=1e-12 * np.abs(one).max())
+    np.testing.assert_allclose(own.jones(times, freq, ra, dec), one, rtol=0,
+                               atol=1e-12 * np.abs(one).max())
+
+
 def test_phase_centre_correction(beams):
     fast, _ = beams["3c196"]
     ra0, dec0 = fast.phase_centre

@@ -73,8 +73,9 @@ class JonesFactors(NamedTuple):
     """Beam Jones matrices as a scalar per station times a matrix per element group:
     ``J[p, t, c, k] = scalar[p, t, c, k] * element[group[p], t, c, k]``.
 
-    The form of array beams whose stations share one element response (LOFAR HBA):
-    the scalar is the station's array factor. Axes 0-2 of ``scalar`` and 1-2 of
+    The form of array beams whose stations' fields share one element response per
+    station (LOFAR HBA: one group for all core stations, one per remote station): the
+    scalar is the station's array factor. Axes 0-2 of ``scalar`` and 1-2 of
     ``element`` may have length 1 (broadcast).
 
     Attributes

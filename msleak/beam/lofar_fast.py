@@ -192,37 +192,54 @@ class LofarFastBeam(BeamModel):
         out = np.empty((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
         if out.size == 0:
             return out
-        factors = np.empty((stations.size, len(self._group_axes), freq.size, ra.size),
+        slots = self._slots(stations)
+        factors = np.empty((stations.size, slots[3].shape[1], freq.size, ra.size),
                            np.complex128)
         for it, t in enumerate(time):
-            ej = self._slot_factors(float(t), freq, ra, dec, stations, factors)
-            combine_jones(factors, ej, out[:, it])
+            ej = self._slot_factors(float(t), freq, ra, dec, slots, factors)
+            combine_jones(factors, slots[3], ej, out[:, it])
         return out
 
     def _jones_factors(self, time, freq, ra, dec, stations, dtype):
-        groups = [np.unique(self._field_group[self._field_station == s]) for s in stations]
-        if any(g.size > 1 for g in groups):
+        slots = self._slots(stations)
+        slot_groups = slots[3]
+        if slot_groups.shape[1] > 1:
             return None  # a station whose fields have different element responses
-        group = np.array([g[0] if g.size else 0 for g in groups], dtype=np.int64)
-        ngroup = len(self._group_axes)
-        scalar = np.empty((stations.size, time.size, freq.size, ra.size), dtype)
-        element = np.zeros((ngroup, time.size, freq.size, ra.size, 2, 2), dtype)
-        per_group = (np.empty((stations.size, ngroup, freq.size, ra.size), dtype)
-                     if ngroup > 1 else None)
+        group = np.maximum(slot_groups[:, 0], 0)  # a station without fields: zero factor
+        scalar = np.zeros((stations.size, time.size, freq.size, ra.size), dtype)
+        element = np.zeros((len(self._group_axes), time.size, freq.size, ra.size, 2, 2),
+                           dtype)
+        if scalar.size == 0:
+            return JonesFactors(scalar, element, group)
         for it, t in enumerate(time):
-            target = scalar[:, it, None] if per_group is None else per_group
-            element[:, it] = self._slot_factors(float(t), freq, ra, dec, stations, target)
-            if per_group is not None:
-                scalar[:, it] = per_group[np.arange(stations.size), group]
+            element[:, it] = self._slot_factors(float(t), freq, ra, dec, slots,
+                                                scalar[:, it, None])
         return JonesFactors(scalar, element, group)
 
-    def _slot_factors(self, time: float, freq, ra, dec, stations, factors) -> np.ndarray:
-        """Array factors (nstation, ngroup, nchan, ndir) of one time slot, written into
+    def _slots(self, stations) -> tuple:
+        """The kernel's per-station layout of ``stations``: (slot_fields, slot_ptr,
+        field_sub, slot_groups), with slot_groups (nstation, nsub) the distinct element
+        groups of each station's fields (-1 padded, nsub >= 1) and field_sub the index
+        there of every entry of slot_fields."""
+        per_station = [np.flatnonzero(self._field_station == s) for s in stations]
+        groups = [np.unique(self._field_group[f]) for f in per_station]
+        slot_groups = np.full((len(stations), max([1] + [g.size for g in groups])), -1,
+                              dtype=np.int64)
+        for i, g in enumerate(groups):
+            slot_groups[i, :g.size] = g
+        field_sub = np.concatenate(
+            [np.zeros(0, np.int64)] + [np.searchsorted(g, self._field_group[f])
+                                       for f, g in zip(per_station, groups)]).astype(np.int64)
+        slot_ptr = np.concatenate([[0], np.cumsum([len(f) for f in per_station])]).astype(np.int64)
+        slot_fields = np.concatenate([np.zeros(0, np.int64)] + per_station).astype(np.int64)
+        return slot_fields, slot_ptr, field_sub, slot_groups
+
+    def _slot_factors(self, time: float, freq, ra, dec, slots, factors) -> np.ndarray:
+        """Array factors (nstation, nsub, nchan, ndir) of one time slot per station and
+        element group of its fields (``slots`` from :meth:`_slots`), written into
         ``factors``; returns the element Jones matrices (ngroup, nchan, ndir, 2, 2) (zero
         for groups no station uses)."""
-        per_station = [np.flatnonzero(self._field_station == s) for s in stations]
-        slot_ptr = np.concatenate([[0], np.cumsum([len(f) for f in per_station])]).astype(np.int64)
-        slot_fields = np.concatenate(per_station).astype(np.int64)
+        slot_fields, slot_ptr, field_sub, slot_groups = slots
         uniform, df = _uniform_step(freq)
         d, s0, t0, ncp = self._directions(time, ra, dec)
         north, east = sky_basis(d, ncp)
@@ -231,7 +248,7 @@ class LofarFastBeam(BeamModel):
             ej[g] = element_jones(self._group_response[g], self._group_axes[g], freq, d,
                                   north, east)
         station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr,
-                               self._field_group, self._field_layout, self._field_scale,
+                               field_sub, self._field_layout, self._field_scale,
                                self._field_up, self._tile_pos,
                                self._tile_w, self._layout_pos, self._layout_w, factors)
         return ej

@@ -2,9 +2,9 @@
 
 :func:`station_factors_kernel` gives the array factors of the stations of one time slot:
 per antenna field the field phase reference, the field (tile) array factor and the tile
-(element) array factor, summed per group of fields that share an element response, for
-ITRF unit directions and channel frequencies (Hz), with phases advanced channel to channel
-over a uniform band. A station's Jones matrix is the sum over groups of its factor times
+(element) array factor, summed over the station's fields that share an element response,
+for ITRF unit directions and channel frequencies (Hz), with phases advanced channel to
+channel over a uniform band. A station's Jones matrix is the sum over groups of its factor times
 the group's element Jones matrices (:mod:`msleak.beam.lofar_fast`; :func:`combine_jones`).
 :func:`apply_left_inverse` applies ``J(s0)^-1`` in place; :func:`sincos` is a
 branch-free polynomial sine/cosine that vectorises.
@@ -108,14 +108,14 @@ def _accumulate(acc, delta, nb, positions, weights, freq, uniform, df, zr, zi, s
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, field_group,
+def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, field_sub,
                            field_layout, field_scale, field_up, tile_pos, tile_w, layout_pos,
                            layout_w, out):
     """Array factors of the stations of one time slot per element group, written into ``out``.
 
-    Station ``i``'s Jones matrix is ``sum_g out[i, g] E_g`` with ``E_g`` the element Jones
-    matrices of group ``g`` (:func:`combine_jones`); ``out[i, g]`` sums the station's fields
-    of group ``g`` (zero if it has none).
+    Station ``i``'s Jones matrix is ``sum_u out[i, u] E_g(i, u)`` with ``E_g`` the element
+    Jones matrices of group ``g`` (:func:`combine_jones`): ``out[i, u]`` sums the station's
+    fields of its ``u``-th element group (zero where it has fewer groups).
 
     Parameters
     ----------
@@ -127,8 +127,9 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
         Hz; if ``uniform``, ``freq[c] = freq[0] + c * df``.
     slot_fields, slot_ptr : int64 arrays
         The fields of output station ``i`` are ``slot_fields[slot_ptr[i]:slot_ptr[i + 1]]``.
-    field_group : (nfield,) int64
-        Element group of the field (axis 1 of ``out``).
+    field_sub : (len(slot_fields),) int64
+        Of every entry of ``slot_fields``: the index (axis 1 of ``out``) of its field's
+        element group among its station's groups.
     field_layout : (nfield,) int64
         Index into ``layout_pos`` of the field's tile element layout.
     field_scale : (nfield,) float64
@@ -141,13 +142,14 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
         factor) and normalised weights (zero-padded).
     layout_pos, layout_w : (nlayout, nelem, 3), (nlayout, nelem) float64
         Tile element offsets (m) and weights (1/16).
-    out : (nslot, ngroup, nchan, ndir) complex64 or complex128
+    out : (nslot, nsub, nchan, ndir) complex64 or complex128
+        nsub: the most element groups of any one station (1 for LOFAR HBA).
         Output; every element is written.
     """
     ndir = d.shape[0]
     nchan = freq.size
     nslot = slot_ptr.size - 1
-    ngroup = out.shape[1]
+    nsub = out.shape[1]
     nlayout = layout_pos.shape[0]
     need = np.zeros(nlayout, np.bool_)
     for i in range(slot_fields.size):
@@ -160,7 +162,7 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
         nb = min(_BLOCK, ndir - k0)
         af = np.empty((nchan, nb), np.complex128)
         at = np.empty((nlayout, nchan, nb), np.complex128)
-        sst = np.empty((ngroup, nchan, nb), np.complex128)
+        sst = np.empty((nsub, nchan, nb), np.complex128)
         zr = np.empty((nmax, nb))
         zi = np.empty((nmax, nb))
         sr = np.empty((nmax, nb))
@@ -176,7 +178,7 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
                 up = field_up[fi]
                 lay = field_layout[fi]
                 scale = field_scale[fi]
-                g = field_group[fi]
+                g = field_sub[i]
                 _accumulate(af, ds, nb, tile_pos[fi], tile_w[fi], freq, uniform, df,
                             zr, zi, sr, si)
                 for kl in range(nb):  # the field's weight; zero below its horizon
@@ -186,20 +188,21 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
                 for c in range(nchan):
                     for kl in range(nb):
                         sst[g, c, kl] += af[c, kl] * at[lay, c, kl] * weight[kl]
-            for g in range(ngroup):
+            for g in range(nsub):
                 for c in range(nchan):
                     for kl in range(nb):
                         out[slot, g, c, k0 + kl] = sst[g, c, kl]
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def combine_jones(factors, element_jones, out):
-    """``out[i, c, k] = sum_g factors[i, g, c, k] element_jones[g, c, k]``.
+def combine_jones(factors, slot_groups, element_jones, out):
+    """``out[i, c, k] = sum_u factors[i, u, c, k] element_jones[slot_groups[i, u], c, k]``
+    over the ``u`` with ``slot_groups[i, u] >= 0``.
 
-    factors : (nslot, ngroup, nchan, ndir); element_jones : (ngroup, nchan, ndir, 2, 2);
-    out : (nslot, nchan, ndir, 2, 2).
+    factors : (nslot, nsub, nchan, ndir); slot_groups : (nslot, nsub) int64;
+    element_jones : (ngroup, nchan, ndir, 2, 2); out : (nslot, nchan, ndir, 2, 2).
     """
-    nslot, ngroup, nchan, ndir = factors.shape
+    nslot, nsub, nchan, ndir = factors.shape
     for idx in prange(nslot * nchan):
         i = idx // nchan
         c = idx % nchan
@@ -207,8 +210,10 @@ def combine_jones(factors, element_jones, out):
             for a in range(2):
                 for b in range(2):
                     v = 0j
-                    for g in range(ngroup):
-                        v += factors[i, g, c, k] * element_jones[g, c, k, a, b]
+                    for u in range(nsub):
+                        g = slot_groups[i, u]
+                        if g >= 0:
+                            v += factors[i, u, c, k] * element_jones[g, c, k, a, b]
                     out[i, c, k, a, b] = v
 
 

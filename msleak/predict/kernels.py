@@ -433,7 +433,8 @@ def scratch_bytes(nstation: int, ndir: int, ndir_skies: int, nchan: int, dtype) 
     """Memory :func:`predict_grams` allocates besides its result (bytes, all threads) for
     skies with ``ndir_skies`` directions in all and at most ``nchan`` channels: their
     factors in column order, and per thread the phases of ``ndir`` directions, one
-    station's A matrices (or, with factored Jones, one element group's E W) and their Z."""
+    station's A matrices (or, with factored Jones, E W of one element group; add
+    ``64 ndir_skies`` per thread for each further group) and their Z."""
     per_thread = (40 * nstation * ndir + 64 * ndir + 64 * ndir_skies
                   + 4 * nstation * ndir_skies * np.dtype(dtype).itemsize)
     return nb.get_num_threads() * per_thread + 80 * nchan * ndir_skies
@@ -469,7 +470,8 @@ def _check_jones(jones, nst: int, nt: int, nchan: int, ndir: int, dtype) -> tupl
         if element.ndim != 6 or element.shape[3:] != (ndir, 2, 2):
             raise ValueError(f"jones.element has shape {element.shape}, expected "
                              f"(ngroup, ntime, nchan, {ndir}, 2, 2)")
-        if group.shape != (nst,) or group.min() < 0 or group.max() >= element.shape[0]:
+        if group.shape != (nst,) or (nst and (group.min() < 0
+                                              or group.max() >= element.shape[0])):
             raise ValueError(f"jones.group must be {nst} indices into jones.element's "
                              f"{element.shape[0]} groups")
         _check_broadcast(scalar, (nst, nt, nchan), "jones.scalar")
