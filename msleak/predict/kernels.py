@@ -215,6 +215,14 @@ def _station_a(a, phase, p, jones, jp, jt, jc):
         a[s, 3] = e * jones[jp, jt, jc, s, 1, 1]
 
 
+@nb.njit(inline="always")
+def _station_rows(ptr, r, p, n2):
+    """(offset in z of station p's X row of sky r's Z_r^T, the row length 2 ndir_r, the
+    first column of sky r among all skies' columns); the Y row follows the X row."""
+    kmax = 2 * (ptr[r + 1] - ptr[r])
+    return n2 * 2 * ptr[r] + 2 * p * kmax, kmax, 2 * ptr[r]
+
+
 @nb.njit(nogil=True, cache=True)
 def _fill_z(z, a, p, n2, c, ptr, cdir, wcol):
     """Rows 2p, 2p+1 of every computed sky's Z_r^T = (A_p W)^T at channel c.
@@ -224,9 +232,7 @@ def _fill_z(z, a, p, n2, c, ptr, cdir, wcol):
     Column ``col`` (of all skies) is direction ``cdir[c, col]`` times the brightness factor
     column ``wcol[c, col]``; unused columns (``cdir < 0``) are not written."""
     for r in range(ptr.shape[0] - 1):
-        kmax = 2 * (ptr[r + 1] - ptr[r])
-        row = n2 * 2 * ptr[r] + 2 * p * kmax
-        col0 = 2 * ptr[r]
+        row, kmax, col0 = _station_rows(ptr, r, p, n2)
         for k in range(kmax):
             s = cdir[c, col0 + k]
             if s < 0:
@@ -258,9 +264,7 @@ def _fill_z_factored(z, gs, m, p, n2, c, ptr, cdir):
     """:func:`_fill_z` for J_p(s) = S_p(s) E_g(s): column ``col`` of station p is
     ``gs[s] m[col]`` with ``gs = phase_p S_p`` and ``m`` = E_g W (:func:`_element_w`)."""
     for r in range(ptr.shape[0] - 1):
-        kmax = 2 * (ptr[r + 1] - ptr[r])
-        row = n2 * 2 * ptr[r] + 2 * p * kmax
-        col0 = 2 * ptr[r]
+        row, kmax, col0 = _station_rows(ptr, r, p, n2)
         for k in range(kmax):
             s = cdir[c, col0 + k]
             if s < 0:
