@@ -183,3 +183,22 @@ def test_every_numeric_variable_has_units(inputs):
         elif np.issubdtype(var.dtype, np.number):
             assert var.attrs.get("units"), name
     assert res["n_voxels"].attrs["units"] == "1" and res["power_I"].attrs["units"] == "mK^2 Mpc^3"
+
+
+def test_pdf_beside_png_has_the_png_layout(tmp_path):
+    """save_figure lays a constrained-layout figure out once: the PDF is drawn with the
+    axes where the PNG's layout put them (not where they were before it)."""
+    from msleak.plot import new_figure, save_figure
+
+    fig, axes = new_figure(2, 2, constrained_layout=True)
+    for ax in axes.flat:
+        ax.set_ylabel("a long label\nover two lines")
+    before = [ax.get_position().bounds for ax in axes.flat]
+    drawn = []
+    fig.canvas.mpl_connect("draw_event",
+                           lambda event: drawn.append([ax.get_position().bounds
+                                                       for ax in axes.flat]))
+    out = save_figure(fig, tmp_path / "f.png", pdf=True)
+    assert out.stat().st_size > 0 and (tmp_path / "f.pdf").stat().st_size > 0
+    assert len(drawn) >= 2 and drawn[0] != before
+    assert all(positions == drawn[0] for positions in drawn[1:])

@@ -138,3 +138,27 @@ def test_bad_grid_parameters():
         make_grid(0.0, 100.0)
     with pytest.raises(InputError, match="unknown gridder"):
         make_accumulator("nearest", make_grid(16, 100), FREQ)
+
+
+def test_wgrid_channels_at_once_give_the_same_sums():
+    """Gridding several channels at once (two buffered blocks, three sets, one sample
+    non-finite in one set, flagged samples) adds exactly what one channel at a time does."""
+    rng = np.random.default_rng(11)
+    nrow, nchan, nsets = 400, 7, 3
+    freq = 150e6 + 195312.5 * np.arange(nchan)
+    grid = make_grid(16.0, 120.0)
+    uvw = rng.uniform(-200, 200, (nrow, 3)) * [1, 1, 0.2]
+    vis = rng.normal(size=(nsets, 4, nrow, nchan)) + 1j * rng.normal(size=(nsets, 4, nrow, nchan))
+    vis[1, 2, 5, 3] = np.nan
+    wgt = rng.uniform(0.5, 2, (nrow, nchan)) * (rng.uniform(size=(nrow, nchan)) > 0.1)
+    sums = []
+    for threads in (1, 3, 16):
+        acc = make_accumulator("wgrid", grid, freq, nsets=nsets, channel_threads=threads)
+        acc.add(uvw[:150], vis[:, :, :150], wgt[:150])
+        acc.add(uvw[150:], vis[:, :, 150:], wgt[150:])
+        sums.append([np.concatenate([num, den[None]]) for num, den in
+                     (acc.numerators(k) for k in range(nsets))])
+    assert np.count_nonzero(sums[0][0]) > 0
+    for other in sums[1:]:
+        for a, b in zip(sums[0], other):
+            assert np.array_equal(a, b)

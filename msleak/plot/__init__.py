@@ -34,11 +34,14 @@ def new_figure(*args, **kwargs):
 
 
 def save_figure(fig, path, pdf: bool = False, dpi: int = 130) -> Path:
-    """Save ``fig`` to ``path`` (and a PDF beside it if ``pdf``), then close it."""
+    """Save ``fig`` to ``path`` (and a PDF beside it if ``pdf``, laid out as the first
+    file: its layout engine runs once), then close it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     if pdf and path.suffix.lower() != ".pdf":
+        if fig.get_layout_engine() is not None:
+            fig.set_layout_engine("none")  # keeps the axes where the layout put them
         fig.savefig(path.with_suffix(".pdf"), bbox_inches="tight")
     _pyplot().close(fig)
     return path

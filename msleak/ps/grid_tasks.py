@@ -29,7 +29,7 @@ from msleak.errors import InputError
 from msleak.io import ms as msio
 from msleak.io.columns import read_run_state
 from msleak.io.ms import iter_rows, open_table
-from msleak.parallel import CASACORE_LOCK, open_runner
+from msleak.parallel import CASACORE_LOCK, cpu_count, open_runner
 from msleak.ps.gridding import BOX_FACTOR, accumulator_bytes, make_accumulator, stokes_weights
 
 __all__ = ["AUTO_CHUNK_SAMPLES", "Input", "Spec", "check_input", "run_tasks", "rows_for_memory",
@@ -417,8 +417,15 @@ def run_tasks(inputs: list, spec: Spec, chunk_rows: int | None, scheduler, worke
             for job, (accs, st) in runner.map(_grid_task, jobs(), shared=spec,
                                               window=tasks):
                 k = job.k
-                totals[k] = accs if totals[k] is None else [
-                    a.merge(b) for a, b in zip(totals[k], accs)]
+                if totals[k] is None:
+                    # what the tasks leave buffered is gridded here, as many channels at
+                    # once as tasks run at once (no more memory than they hold)
+                    for acc in accs:
+                        if hasattr(acc, "channel_threads"):
+                            acc.channel_threads = min(tasks, cpu_count())
+                    totals[k] = accs
+                else:
+                    totals[k] = [a.merge(b) for a, b in zip(totals[k], accs)]
                 del accs  # not kept while the next chunks run
                 for key, value in st.items():
                     stats[key] += value

@@ -8,6 +8,7 @@ The kernels take u = -UVW of the MS (docs/conventions.md).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -336,6 +337,9 @@ class WGridAccumulator:
         per set the visibilities as given and 1 byte of validity, 24 per row for uvw.
     nsets : int
         Visibility sets gridded together.
+    channel_threads : int
+        Channels gridded at once (each with its own ``nthreads`` ducc0 calls); the sums
+        do not depend on it. Settable as the attribute ``channel_threads``.
     to_stokes : (stokes, corr) complex, optional
         Given: :meth:`add` takes correlations, which wait in the buffer as given (e.g.
         complex64, half the size of complex128 Stokes visibilities) and become the Stokes
@@ -344,7 +348,8 @@ class WGridAccumulator:
 
     def __init__(self, grid: UVGrid, freq: np.ndarray, nstokes: int = 4,
                  epsilon: float = 1e-6, nthreads: int = 1, buffer_samples: int = 2_000_000,
-                 nsets: int = 1, to_stokes: np.ndarray | None = None):
+                 nsets: int = 1, channel_threads: int = 1,
+                 to_stokes: np.ndarray | None = None):
         self.factor = BOX_FACTOR
         n = self.factor * grid.npix_image
         self.taper_image = image_taper(n)
@@ -356,6 +361,7 @@ class WGridAccumulator:
         self.nthreads = int(nthreads)
         self.buffer_samples = int(buffer_samples)
         self.nsets = int(nsets)
+        self.channel_threads = int(channel_threads)
         self._takes_correlations = to_stokes is not None
         # Stokes visibilities are kept as (set, row, chan, stokes) views, "correlations"
         # whose Stokes visibilities are themselves
@@ -425,45 +431,58 @@ class WGridAccumulator:
             self.grid_buffer()
 
     def grid_buffer(self) -> None:
-        """Grid the buffered samples into the cell sums, one channel at a time (the buffer
-        is not copied: each ducc0 call gathers its channel's samples)."""
+        """Grid the buffered samples into the cell sums, channel by channel, up to
+        ``channel_threads`` channels at once (the buffer is not copied: each ducc0 call
+        gathers its channel's samples)."""
         if not self._buffer:
             return
-        try:
-            from ducc0.wgridder import vis2dirty
-        except ImportError as err:  # pragma: no cover - ducc0 is a dependency
-            raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
         buffer, self._buffer, self._nbuffer = self._buffer, [], 0
         if self._cells is None:
             g = self.grid.size
             self._cells = np.zeros((self.nsets, self.nstokes + 1, self.nchan, g, g),
                                    np.complex128)
+        threads = max(1, min(self.channel_threads, self.nchan))
+        if threads == 1:
+            for c in range(self.nchan):
+                self._grid_channel(buffer, c)
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        # ducc0 and the FFTs release the GIL; each channel adds to its own cells only
+        with ThreadPoolExecutor(threads, thread_name_prefix="msleak-wgrid") as pool:
+            list(pool.map(functools.partial(self._grid_channel, buffer), range(self.nchan)))
+
+    def _grid_channel(self, buffer: list, c: int) -> None:
+        """Add channel ``c`` of the buffered blocks to the cell sums."""
+        try:
+            from ducc0.wgridder import vis2dirty
+        except ImportError as err:  # pragma: no cover - ducc0 is a dependency
+            raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
         n, dl = self.npix, self.grid.pixel_rad
-        for c in range(self.nchan):
-            plans: list = []  # (row masks of the buffered blocks, ducc0 arguments, PSF cells)
-            weighted = [wgt[:, c] > 0 for _, _, wgt, _ in buffer]
-            for k in range(self.nsets):
-                masks = [w & good[k, :, c] for w, (_, _, _, good) in zip(weighted, buffer)]
-                if not any(m.any() for m in masks):
-                    continue
-                plan = next((p for p in plans if all(map(np.array_equal, p[0], masks))), None)
-                if plan is None:
-                    w = np.concatenate([b[2][m, c] for b, m in zip(buffer, masks)])
-                    kw = dict(uvw=np.concatenate([b[0][m] for b, m in zip(buffer, masks)]),
-                              freq=self.freq[c:c + 1], wgt=w.reshape(-1, 1), npix_x=n,
-                              npix_y=n, pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon,
-                              do_wgridding=True, flip_w=True, divide_by_n=False,
-                              nthreads=self.nthreads)
-                    psf = vis2dirty(vis=np.ones((w.size, 1), np.complex128), **kw)
-                    plan = (masks, kw, self._at_cells(psf))
-                    plans.append(plan)
-                _, kw, psf = plan
-                corr = np.concatenate([b[1][k, m, c] for b, m in zip(buffer, masks)])
-                stokes = _stokes(corr, self._to_stokes)
-                for s in range(self.nstokes):
-                    self._cells[k, s, c] += self._at_cells(
-                        vis2dirty(vis=stokes[s].reshape(-1, 1), **kw))
-                self._cells[k, -1, c] += psf
+        plans: list = []  # (row masks of the buffered blocks, ducc0 arguments, PSF cells)
+        weighted = [wgt[:, c] > 0 for _, _, wgt, _ in buffer]
+        for k in range(self.nsets):
+            masks = [w & good[k, :, c] for w, (_, _, _, good) in zip(weighted, buffer)]
+            if not any(m.any() for m in masks):
+                continue
+            plan = next((p for p in plans if all(map(np.array_equal, p[0], masks))), None)
+            if plan is None:
+                w = np.concatenate([b[2][m, c] for b, m in zip(buffer, masks)])
+                kw = dict(uvw=np.concatenate([b[0][m] for b, m in zip(buffer, masks)]),
+                          freq=self.freq[c:c + 1], wgt=w.reshape(-1, 1), npix_x=n,
+                          npix_y=n, pixsize_x=dl, pixsize_y=dl, epsilon=self.epsilon,
+                          do_wgridding=True, flip_w=True, divide_by_n=False,
+                          nthreads=self.nthreads)
+                psf = vis2dirty(vis=np.ones((w.size, 1), np.complex128), **kw)
+                plan = (masks, kw, self._at_cells(psf))
+                plans.append(plan)
+            _, kw, psf = plan
+            corr = np.concatenate([b[1][k, m, c] for b, m in zip(buffer, masks)])
+            stokes = _stokes(corr, self._to_stokes)
+            for s in range(self.nstokes):
+                self._cells[k, s, c] += self._at_cells(
+                    vis2dirty(vis=stokes[s].reshape(-1, 1), **kw))
+            self._cells[k, -1, c] += psf
 
     def _at_cells(self, image: np.ndarray) -> np.ndarray:
         """(v, u) complex: the Fourier transform of the tapered (n, n) dirty ``image`` at
@@ -518,15 +537,17 @@ class WGridAccumulator:
 
 def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
                      epsilon: float = 1e-6, nthreads: int = 1, nsets: int = 1,
-                     buffer_samples: int = 2_000_000, to_stokes: np.ndarray | None = None):
+                     buffer_samples: int = 2_000_000, channel_threads: int = 1,
+                     to_stokes: np.ndarray | None = None):
     """A fresh accumulator of the named gridder for ``nsets`` visibility sets, taking
-    correlations when ``to_stokes`` is given (``epsilon``, ``nthreads`` and
-    ``buffer_samples``: ``wgrid`` only)."""
+    correlations when ``to_stokes`` is given (``epsilon``, ``nthreads``,
+    ``buffer_samples`` and ``channel_threads``: ``wgrid`` only)."""
     if gridder == "cell":
         return CellAccumulator(grid, len(freq), nsets=nsets, to_stokes=to_stokes)
     if gridder == "wgrid":
         return WGridAccumulator(grid, freq, epsilon=epsilon, nthreads=nthreads, nsets=nsets,
-                                buffer_samples=buffer_samples, to_stokes=to_stokes)
+                                buffer_samples=buffer_samples,
+                                channel_threads=channel_threads, to_stokes=to_stokes)
     raise InputError(f"unknown gridder {gridder!r}: use 'wgrid' or 'cell'")
 
 
