@@ -187,10 +187,13 @@ def test_every_numeric_variable_has_units(inputs):
 
 def test_pdf_beside_png_has_the_png_layout(tmp_path):
     """save_figure lays a constrained-layout figure out once: the PDF is drawn with the
-    axes where the PNG's layout put them (not where they were before it)."""
+    axes where the PNG's layout put them (not where they were before it), and the PNG
+    keeps the figure's size."""
+    import matplotlib.image
+
     from msleak.plot import new_figure, save_figure
 
-    fig, axes = new_figure(2, 2, constrained_layout=True)
+    fig, axes = new_figure(2, 2, figsize=(4.0, 3.0), constrained_layout=True)
     for ax in axes.flat:
         ax.set_ylabel("a long label\nover two lines")
     before = [ax.get_position().bounds for ax in axes.flat]
@@ -202,3 +205,4 @@ def test_pdf_beside_png_has_the_png_layout(tmp_path):
     assert out.stat().st_size > 0 and (tmp_path / "f.pdf").stat().st_size > 0
     assert len(drawn) >= 2 and drawn[0] != before
     assert all(positions == drawn[0] for positions in drawn[1:])
+    assert matplotlib.image.imread(out).shape[:2] == (3 * 130, 4 * 130)

@@ -35,13 +35,20 @@ def new_figure(*args, **kwargs):
 
 def save_figure(fig, path, pdf: bool = False, dpi: int = 130) -> Path:
     """Save ``fig`` to ``path`` (and a PDF beside it if ``pdf``, laid out as the first
-    file: its layout engine runs once), then close it."""
+    file: its layout engine runs once), then close it. A figure with constrained layout
+    keeps its size (the layout fits everything in it); others are cropped to what they
+    draw."""
+    from matplotlib.layout_engine import ConstrainedLayoutEngine
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    engine = fig.get_layout_engine()
+    # cropping needs a draw of its own, which would run the layout once more
+    bbox = None if isinstance(engine, ConstrainedLayoutEngine) else "tight"
+    fig.savefig(path, dpi=dpi, bbox_inches=bbox)
     if pdf and path.suffix.lower() != ".pdf":
-        if fig.get_layout_engine() is not None:
+        if engine is not None:
             fig.set_layout_engine("none")  # keeps the axes where the layout put them
-        fig.savefig(path.with_suffix(".pdf"), bbox_inches="tight")
+        fig.savefig(path.with_suffix(".pdf"), bbox_inches=bbox)
     _pyplot().close(fig)
     return path
