@@ -30,7 +30,8 @@ from msleak.io import ms as msio
 from msleak.io.columns import read_run_state
 from msleak.io.ms import iter_rows, open_table
 from msleak.parallel import CASACORE_LOCK, cpu_count, open_runner
-from msleak.ps.gridding import BOX_FACTOR, accumulator_bytes, make_accumulator, stokes_weights
+from msleak.ps.gridding import (BOX_FACTOR, WGridAccumulator, accumulator_bytes,
+                                make_accumulator, stokes_weights)
 
 __all__ = ["AUTO_CHUNK_SAMPLES", "Input", "Spec", "check_input", "run_tasks", "rows_for_memory",
            "plan_chunks", "working_set", "uvcube_dataset"]
@@ -421,7 +422,7 @@ def run_tasks(inputs: list, spec: Spec, chunk_rows: int | None, scheduler, worke
                     # what the tasks leave buffered is gridded here, as many channels at
                     # once as tasks run at once (no more memory than they hold)
                     for acc in accs:
-                        if hasattr(acc, "channel_threads"):
+                        if isinstance(acc, WGridAccumulator):
                             acc.channel_threads = min(tasks, cpu_count())
                     totals[k] = accs
                 else:

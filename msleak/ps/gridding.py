@@ -436,28 +436,29 @@ class WGridAccumulator:
         gathers its channel's samples)."""
         if not self._buffer:
             return
+        try:
+            from ducc0.wgridder import vis2dirty
+        except ImportError as err:  # pragma: no cover - ducc0 is a dependency
+            raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
         buffer, self._buffer, self._nbuffer = self._buffer, [], 0
         if self._cells is None:
             g = self.grid.size
             self._cells = np.zeros((self.nsets, self.nstokes + 1, self.nchan, g, g),
                                    np.complex128)
         threads = max(1, min(self.channel_threads, self.nchan))
+        one = functools.partial(self._grid_channel, vis2dirty, buffer)
         if threads == 1:
             for c in range(self.nchan):
-                self._grid_channel(buffer, c)
+                one(c)
             return
         from concurrent.futures import ThreadPoolExecutor
 
         # ducc0 and the FFTs release the GIL; each channel adds to its own cells only
         with ThreadPoolExecutor(threads, thread_name_prefix="msleak-wgrid") as pool:
-            list(pool.map(functools.partial(self._grid_channel, buffer), range(self.nchan)))
+            list(pool.map(one, range(self.nchan)))
 
-    def _grid_channel(self, buffer: list, c: int) -> None:
-        """Add channel ``c`` of the buffered blocks to the cell sums."""
-        try:
-            from ducc0.wgridder import vis2dirty
-        except ImportError as err:  # pragma: no cover - ducc0 is a dependency
-            raise ImportError("the wgrid gridder needs ducc0 (pip install ducc0)") from err
+    def _grid_channel(self, vis2dirty, buffer: list, c: int) -> None:
+        """Add channel ``c`` of the buffered blocks to the cell sums (``vis2dirty``: ducc0's)."""
         n, dl = self.npix, self.grid.pixel_rad
         plans: list = []  # (row masks of the buffered blocks, ducc0 arguments, PSF cells)
         weighted = [wgt[:, c] > 0 for _, _, wgt, _ in buffer]
