@@ -1,9 +1,11 @@
 """Driver of scripts/bench: build the paper-scale inputs, time every msleak stage with its
 peers side by side, and write bench-output/bench.json and docs/benchmarks.md.
 
-Each stage runs as its own process under /usr/bin/time -v (wall time, peak resident memory
-of the largest process). The per-topic scripts (scripts/bench_*.py, each accepting
-``--outdir DIR --quick`` and printing one JSON object as its last line) time the peers:
+Each stage runs as its own process under /usr/bin/time -v (wall time, CPU time, peak
+memory: the largest process's resident set, or the whole process tree's proportional set
+size sampled every 0.2 s when that is larger). The per-topic scripts (scripts/bench_*.py,
+each accepting ``--outdir DIR --quick`` and printing one JSON object as its last line) time
+the peers:
 EveryBeam direct (beam), DP3 predict + applybeam (predict), ps_eor (PS of an image cube),
 and the scaling of predict and grid with sources, stations, times and channels.
 
@@ -22,6 +24,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,23 +32,61 @@ ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = ROOT / "scripts"
 
 
+def _tree_pss_kib(pid: int) -> int:
+    """Proportional set size (KiB) of ``pid`` and all its descendants, summed (shared pages
+    counted once over the processes that share them), from /proc."""
+    children: dict[int, list[int]] = {}
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/stat") as fh:
+                ppid = int(fh.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        children.setdefault(ppid, []).append(int(entry.name))
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        todo += children.get(p, [])
+        try:
+            with open(f"/proc/{p}/smaps_rollup") as fh:
+                total += next(int(line.split()[1]) for line in fh if line.startswith("Pss:"))
+        except (OSError, StopIteration):
+            continue
+    return total
+
+
 def timed(cmd: list, cwd: Path) -> dict:
-    """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak RSS (MiB), CPU seconds (user +
-    system, a check on wall times taken while other jobs shared the machine), exit code,
-    output."""
+    """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak resident memory (MiB), CPU
+    seconds (user + system, a check on wall times taken while other jobs shared the
+    machine), exit code, output. The peak is the larger of the largest single process's
+    (time -v, RSS) and the whole process tree's proportional set size sampled every
+    0.2 s, so commands that run steps in worker processes (msleak paper --workers) count
+    them all."""
     t0 = time.perf_counter()
-    proc = subprocess.run(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd,
-                          capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", proc.stderr)
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd,
+                                stdout=out, stderr=err, text=True)
+        tree_kib = 0
+        while proc.poll() is None:
+            tree_kib = max(tree_kib, _tree_pss_kib(proc.pid))
+            time.sleep(0.2)
+        wall = time.perf_counter() - t0
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", stderr)
     cpu = [float(m) for m in re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)",
-                                        proc.stderr)]
+                                        stderr)]
+    largest_kib = int(rss.group(1)) if rss else 0
     return {"command": " ".join(map(str, cmd)).replace(str(ROOT) + "/", ""),
             "wall_s": round(wall, 2),
-            "peak_rss_mib": round(int(rss.group(1)) / 1024, 1) if rss else None,
+            "peak_rss_mib": round(max(largest_kib, tree_kib) / 1024, 1) if rss else None,
+            "peak_largest_process_mib": round(largest_kib / 1024, 1) if rss else None,
             "cpu_s": round(sum(cpu), 2) if cpu else None,
-            "exit": proc.returncode, "stdout": proc.stdout[-4000:],
-            "stderr": proc.stderr[-2000:] if proc.returncode else ""}
+            "exit": proc.returncode, "stdout": stdout[-4000:],
+            "stderr": stderr[-2000:] if proc.returncode else ""}
 
 
 def last_json(text: str):
@@ -129,10 +170,13 @@ def bench_many_skies(stage, msleak: list, ms: Path, out: Path, results: dict) ->
 
 
 def bench_study(stage, msleak: list, out: Path, results: dict, quick: bool) -> None:
-    """The whole study with one and with five sky realisations, and DP3's predict time."""
+    """The whole study with one and with five sky realisations (and one with --workers 1),
+    and DP3's predict time."""
     from bench_multisky import FIELDS_OF_VIEW, dp3_estimate, study, study_rows
 
     dp3 = _dp3_per_slot(results)
+    # the steps in turn in one process, for the gain of --workers (the default, 2)
+    results["study"]["paper_seeds1_workers1"] = study(stage, msleak, out, 1, quick, workers=1)
     for seeds in (1, 5):
         r = study(stage, msleak, out, seeds, quick)
         if dp3 and not r["exit"]:

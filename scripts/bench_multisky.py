@@ -80,13 +80,17 @@ def dp3_estimate(dp3_per_slot_2500: float, rows: int, rows_per_slot: int,
     return sum(dp3_per_slot_2500 * rows / rows_per_slot * n / 2500 for n in sources)
 
 
-def study(stage, msleak: list, out: Path, seeds: int, quick: bool = False) -> dict:
+def study(stage, msleak: list, out: Path, seeds: int, quick: bool = False,
+          workers: int | None = None) -> dict:
     """Time the whole study (``msleak paper``, ``--quick`` if asked) with ``seeds`` sky
-    realisations, every step rerun."""
-    outdir = out / f"paper_seeds{seeds}"
-    r = stage(f"paper_seeds{seeds}", [*msleak, "paper", outdir, "--seeds", str(seeds),
-                                      "--overwrite", *(["--quick"] if quick else [])], "study")
+    realisations, every step rerun, with ``--workers`` if given (else its default)."""
+    name = f"paper_seeds{seeds}" + (f"_workers{workers}" if workers else "")
+    outdir = out / name
+    r = stage(name, [*msleak, "paper", outdir, "--seeds", str(seeds), "--overwrite",
+                     *(["--quick"] if quick else []),
+                     *(["--workers", str(workers)] if workers else [])], "study")
     r["seeds"] = seeds
+    r["workers"] = workers or "default"
     r["outdir"] = str(outdir)
     return r
 

@@ -152,12 +152,14 @@ def _multisky_rows(runs: dict) -> list:
 def _study_rows(runs: dict) -> list:
     lines = ["`msleak paper OUTDIR --seeds N --overwrite`: both fields, 3 fields of view, N sky "
              "realisations, every step rerun (simulate, sky, beam maps, predict, grid, "
-             "transform, ps, leakage, figures, report). DP3 column: the estimated time of "
-             "DP3 predict + applybeam for the same predictions alone.", "",
-             "| seeds | wall (s) | wall (min) | peak memory (MiB) | DP3 predict estimate (s) |",
-             "|---|---|---|---|---|"]
+             "transform, ps, leakage, figures, report). Peak memory: of the "
+             "whole process tree (the worker processes summed). DP3 column: the estimated "
+             "time of DP3 predict + applybeam for the same predictions alone.", "",
+             "| seeds | --workers | wall (s) | wall (min) | peak memory (MiB) | DP3 predict "
+             "estimate (s) |", "|---|---|---|---|---|---|"]
     for r in runs.values():
-        lines.append(f"| {r.get('seeds', '?')} | {r['wall_s']:.0f} | {r['wall_s'] / 60:.1f} | "
+        lines.append(f"| {r.get('seeds', '?')} | {r.get('workers', 'default')} | "
+                     f"{r['wall_s']:.0f} | {r['wall_s'] / 60:.1f} | "
                      f"{_f(r['peak_rss_mib'], '.0f')} | "
                      f"{_f(r.get('dp3_predict_estimate_s'), '.0f')} |"
                      + (f" FAILED (exit {r['exit']})" if r["exit"] else ""))

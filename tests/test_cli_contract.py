@@ -64,20 +64,24 @@ def test_verbose_adds_info_and_double_verbose_adds_debug(tmp_path):
 
 def test_paper_shows_each_step_by_default_and_not_with_quiet(tmp_path):
     """The study's first steps run, then simulate fails on a station pattern that matches
-    nothing: by default each step's command is shown as it starts; -q shows only errors."""
+    nothing: by default each step's command is shown as it starts; -q shows only errors,
+    the failing step's own line named by the step when steps run in worker processes."""
     args = ["paper", tmp_path / "study", "--field", "3c196", "--stations", "NOPE*",
             "--nchan", "8"]
-    default = msleak(*args)
+    default = msleak(*args, "--workers", "1")
     assert default.returncode == 2
     steps = [ln for ln in default.stderr.splitlines() if " msleak.study.steps INFO: run  " in ln]
     assert [ln.split("run  ")[1].split(":")[0] for ln in steps] == [
         "sky", "sky-crop-9deg", "sky-crop-4deg", "simulate-3c196"]
     assert "msleak simulate " in steps[-1] and "--stations 'NOPE*'" in steps[-1]
-    quiet = msleak("-q", *args)                     # the sky steps are up to date now
-    assert quiet.returncode == 2
-    lines = quiet.stderr.splitlines()
-    assert len(lines) == 2 and all(ln.startswith("msleak: error: ") for ln in lines), lines
-    assert "'NOPE*'" in lines[0] and "rerun `msleak paper`" in lines[1]
+    for workers in ("1", "2"):                      # the sky steps are up to date now
+        quiet = msleak("-q", *args, "--workers", workers)
+        assert quiet.returncode == 2
+        lines = quiet.stderr.splitlines()
+        first = "msleak: error: " if workers == "1" else "[simulate-3c196] msleak: error: "
+        assert len(lines) == 2, lines
+        assert lines[0].startswith(first) and "'NOPE*'" in lines[0], lines
+        assert lines[1].startswith("msleak: error: ") and "rerun `msleak paper`" in lines[1]
 
 
 # -- library warnings and the one-line error -------------------------------------------

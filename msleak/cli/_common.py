@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 from typing import Sequence
 
 import click
 
-from msleak.errors import InputError, MsleakError
+from msleak.errors import InputError
 from msleak.parallel.runner import parse_memory
 
 __all__ = ["parse_float_list", "FloatList", "MemorySize", "cosmology_options", "beam_model_options",
-           "step_invoker"]
+           "step_invoker", "study_workers_option", "study_invoker"]
 
 
 def parse_float_list(text: str, n: int | None = None, name: str = "value") -> list[float]:
@@ -96,12 +98,40 @@ def step_invoker(ctx: click.Context, command: str):
     """``invoke(args)``: run one msleak command line in this process with the global
     options of ``ctx`` (for multi-step commands such as ``msleak paper``); a failure says
     to rerun ``msleak COMMAND`` to resume."""
+    from msleak.study.steps import step_failed
+
     root = ctx.find_root().command
 
     def invoke(args):
         rc = root.main(args=[*ctx.obj.get("global_args", []), *args], prog_name="msleak",
                        standalone_mode=False, obj=ctx.obj)
         if rc not in (None, 0):
-            raise MsleakError(f"`msleak {' '.join(args)}` failed (exit {rc}); fix what it "
-                              f"said above and rerun `msleak {command}` to resume")
+            raise step_failed(args, rc, command)
     return invoke
+
+
+def study_workers_option(overlap: str):
+    """``--workers N`` of the multi-step commands (paper, forecast): steps run at once;
+    ``overlap`` says what then overlaps."""
+    return click.option(
+        "--workers", type=click.IntRange(1, None), default=None, metavar="N",
+        help=f"Steps run at once, in as many msleak worker processes ({overlap}); 1 runs "
+             "them one after another in this process [default: 2, or 1 on a one-core "
+             "machine].")
+
+
+@contextlib.contextmanager
+def study_invoker(ctx: click.Context, command: str, workers: int | None):
+    """``with study_invoker(ctx, command, workers) as (invoke, workers):`` for a multi-step
+    command: with more than one worker, steps run in msleak worker processes
+    (:class:`msleak.study.steps.ProcessInvoker`, ended on exit), else in this one
+    (:func:`step_invoker`)."""
+    from msleak.study.steps import ProcessInvoker
+
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1)
+    if workers == 1:
+        yield step_invoker(ctx, command), 1
+        return
+    with ProcessInvoker(ctx.obj.get("global_args", []), command, workers) as invoke:
+        yield invoke, workers

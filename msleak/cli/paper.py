@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import step_invoker
+from msleak.cli._common import study_invoker, study_workers_option
 from msleak.study.config import StudyConfig
 from msleak.study.pipeline import run_study
 
@@ -56,12 +56,14 @@ def _observed(ctx, param, values):
               help="Override the integration time [120 s; --quick: 600 s].")
 @click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
               help="Override the number of channels of the MSs and the sky [50].")
+@study_workers_option("the two fields' predicts overlap, as do the grid and beam maps of "
+                      "a field")
 @click.option("--overwrite", is_flag=True,
               help="Rerun every step, replacing its outputs, even those up to date "
               "(without it an existing OUTDIR resumes).")
 @click.pass_context
 def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, duration_h,
-          interval_s, nchan, overwrite):
+          interval_s, nchan, workers, overwrite):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
@@ -78,5 +80,6 @@ def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, dur
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
                       interval_s=interval_s, nchan=nchan)
-    report = run_study(cfg, step_invoker(ctx, "paper"), overwrite=overwrite)
+    with study_invoker(ctx, "paper", workers) as (invoke, workers):
+        report = run_study(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"report: {report}")

@@ -166,7 +166,7 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
         grid += ["--column", f"MODEL_S{seed}", "-o", tdir / f"grid_s{seed}.h5"]
     steps += [Step(f"predict-{tel}", predict, after=[f"simulate-{tel}"], outputs=[ms],
                    inputs=[cubes[s, setup.freq_min(cfg.nchan)] for s in cfg.realisations]),
-              Step(f"grid-{tel}", grid, after=[f"predict-{tel}"],
+              Step(f"grid-{tel}", grid, after=[f"predict-{tel}"], reads=[ms],
                    outputs=[tdir / f"grid_s{s}.h5" for s in cfg.realisations])]
     for seed in cfg.realisations:
         grid_h5, delay, ps = (tdir / f"{x}_s{seed}.h5" for x in ("grid", "delay", "ps"))
@@ -251,14 +251,17 @@ def write_summary(cfg: ForecastConfig, rows: list[dict], log_: list[dict],
     return path
 
 
-def run_forecast(cfg: ForecastConfig, invoke, overwrite: bool = False) -> Path:
+def run_forecast(cfg: ForecastConfig, invoke, overwrite: bool = False,
+                 workers: int = 1) -> Path:
     """Run (or resume) the forecast with ``invoke(args)`` running one msleak command line;
-    ``overwrite`` reruns every step. Returns the path of ``forecast.md``."""
+    ``overwrite`` reruns every step; at most ``workers`` steps run at once (``invoke`` must
+    then be thread-safe, e.g. :class:`msleak.study.steps.ProcessInvoker`). Returns the path
+    of ``forecast.md``."""
     out = Path(cfg.outdir)
     for sub in ("sky", "figures", *cfg.telescopes):
         (out / sub).mkdir(parents=True, exist_ok=True)
     runner = StepRunner(out, overwrite=overwrite)
     t0 = time.perf_counter()
-    runner.run_all(forecast_steps(cfg), invoke)
+    runner.run_all(forecast_steps(cfg), invoke, workers=workers)
     rows = [_summary_row(cfg, tel) for tel in cfg.telescopes]
     return write_summary(cfg, rows, runner.log, time.perf_counter() - t0)

@@ -39,18 +39,15 @@ def _sky_steps(cfg: StudyConfig, sky: Path, fig: Path) -> tuple[list[Step], dict
 
 
 def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Step]:
-    """Simulate, beam maps, one predict and one grid of every realisation and field of
-    view (the beam evaluated once), then transform and PS of each, and the leakage."""
+    """Simulate, one predict and one grid of every realisation and field of view (the beam
+    evaluated once), beam maps, then transform and PS of each, and the leakage."""
     fdir = Path(cfg.outdir) / fld
     ms = fdir / f"{fld}.ms"
     runs = [(seed, label, cfg.suffix(seed)) for seed in cfg.realisations
             for label, _ in FIELDS_OF_VIEW]
     column = {(seed, label): f"MODEL_{label.upper()}{sfx.upper()}" for seed, label, sfx in runs}
     steps = [Step(f"simulate-{fld}", ["simulate", ms, "--field", fld, *cfg.simulate_args,
-                                      "--overwrite"], outputs=[ms]),
-             Step(f"beam-{fld}", ["beam", ms, "-o", fig / f"beam_{fld}.png", "--beam", cfg.beam,
-                                  "--overwrite"],
-                  outputs=[fig / f"beam_{fld}.png"], after=[f"simulate-{fld}"])]
+                                      "--overwrite"], outputs=[ms])]
     predict = ["predict", ms, "--beam", cfg.beam]
     grid = ["grid", ms, "--overwrite"]
     for seed, label, sfx in runs:
@@ -60,7 +57,13 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
                       outputs=[ms], after=[f"simulate-{fld}"]))
     steps.append(Step(f"grid-{fld}", grid, outputs=[fdir / f"grid_{label}{sfx}.h5"
                                                     for _, label, sfx in runs],
-                      after=[f"predict-{fld}"]))
+                      after=[f"predict-{fld}"], reads=[ms]))
+    # listed after predict, so that with several workers it reads the MS beside grid, not
+    # while predict writes it (steps.dependencies)
+    steps.append(Step(f"beam-{fld}", ["beam", ms, "-o", fig / f"beam_{fld}.png", "--beam",
+                                      cfg.beam, "--overwrite"],
+                      outputs=[fig / f"beam_{fld}.png"], after=[f"simulate-{fld}"],
+                      reads=[ms]))
     ps_files = []
     for seed, label, sfx in runs:
         delay = fdir / f"delay_{label}{sfx}.h5"
@@ -109,9 +112,11 @@ def study_steps(cfg: StudyConfig) -> list[Step]:
     return steps
 
 
-def run_study(cfg: StudyConfig, invoke, overwrite: bool = False) -> Path:
+def run_study(cfg: StudyConfig, invoke, overwrite: bool = False, workers: int = 1) -> Path:
     """Run (or resume) the study with ``invoke(args)`` running one msleak command line;
-    ``overwrite`` reruns every step. Returns the path of ``report.md``."""
+    ``overwrite`` reruns every step; at most ``workers`` steps run at once (``invoke`` must
+    then be thread-safe, e.g. :class:`msleak.study.steps.ProcessInvoker`). Returns the
+    path of ``report.md``."""
     out = Path(cfg.outdir)
     out.mkdir(parents=True, exist_ok=True)
     for sub in ("sky", "figures", *cfg.fields):
@@ -119,5 +124,5 @@ def run_study(cfg: StudyConfig, invoke, overwrite: bool = False) -> Path:
     runner = StepRunner(out, overwrite=overwrite)
     t0 = time.perf_counter()
     steps = study_steps(cfg)
-    runner.run_all(steps, invoke)
+    runner.run_all(steps, invoke, workers=workers)
     return write_report(cfg, steps, runner.log, time.perf_counter() - t0)
