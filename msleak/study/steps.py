@@ -22,6 +22,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -397,6 +398,8 @@ def _worker_main(conn, run, parent: int) -> None:
         except KeyboardInterrupt:
             rc = 130
         except BaseException as error:  # noqa: BLE001 - reported, the worker goes on
+            if "--debug" in args:
+                traceback.print_exc()
             sys.stderr.write(f"msleak: unexpected failure: {type(error).__name__}: {error}\n")
             rc = 1
         finally:
