@@ -143,6 +143,19 @@ def compare_cubes(a: Path, b: Path) -> float:
     return float(np.abs(va - vb).max() / np.abs(vb).max())
 
 
+def cpu_model() -> str:
+    """The processor as /proc/cpuinfo names it, with its family and model numbers and
+    whether it has AVX-512: machines of one kind differ up to twofold in speed."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return platform.processor() or "unknown"
+    info = dict(re.findall(r"^(model name|cpu family|model|flags)\s*:\s*(.*)$", text, re.M))
+    avx512 = "avx512f" in info.get("flags", "").split()
+    return (f"{info.get('model name', 'unknown')} (family {info.get('cpu family', '?')}, "
+            f"model {info.get('model', '?')}{', AVX-512' if avx512 else ''})")
+
+
 def _dp3_per_slot(results: dict) -> float | None:
     """DP3's seconds per 120 s slot of the 48-station MS with 2500 sources, from this run."""
     peer = (results["peers"].get("predict_vs_dp3") or {}).get("result") or {}
@@ -202,7 +215,8 @@ def main() -> int:
     only = set(filter(None, args.only.split(",")))
     out = Path(args.outdir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    results = {"machine": {"cpus": os.cpu_count(), "python": sys.version.split()[0],
+    results = {"machine": {"cpus": os.cpu_count(), "cpu": cpu_model(),
+                           "python": sys.version.split()[0],
                            "platform": platform.platform(), "load_avg_start": os.getloadavg()},
                "date": time.strftime("%Y-%m-%d %H:%M"), "quick": args.quick,
                "stages": {}, "peers": {}, "schedulers": {}, "multisky": {}, "study": {},

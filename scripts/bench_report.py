@@ -172,7 +172,8 @@ def write_markdown(results: dict, path: Path) -> None:
     lines = [
         "# msleak benchmarks", "",
         f"Measured by `scripts/bench{' --quick' if results.get('quick') else ''}` on "
-        f"{results['date']}: {m['cpus']} cores, Python {m['python']}, {m['platform']}.",
+        f"{results['date']}: {m['cpus']} cores ({m.get('cpu', 'processor not recorded')}), "
+        f"Python {m['python']}, {m['platform']}.",
         "",
         "**The machine is shared** with other engineers' builds and test runs (load average "
         + (f"{la0[0]:.1f} at the start, {la1[0]:.1f} at the end of the run" if la0 and la1

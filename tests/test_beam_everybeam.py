@@ -229,3 +229,47 @@ def test_everybeam_without_lofar_tables_names_dipole(make_ms, tmp_path):
     for model in ("everybeam", "everybeam-direct"):
         with pytest.raises(InputError, match="--beam dipole"):
             load_beam(model, ms)
+
+
+def _rotation(seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return q
+
+
+def test_lattice_factors_split_a_tile_and_only_a_lattice():
+    """A rotated 4 x 4 tile of 1.25 m splits into 4 + 4 offsets that add up to every
+    element; 2 rows of 8 irregular columns into 2 + 8 (8 regular ones would be 4 + 4); anything that is not a product in the given order
+    (shuffled, one element moved by 1e-6 m, 16 random points, 7 points) is left whole."""
+    from msleak.beam.lofar_fast import lattice_factors
+
+    xy = 1.25 * (np.arange(4) - 1.5)
+    plane = np.stack(np.meshgrid(xy, xy, indexing="ij"), axis=-1).reshape(16, 2)
+    tile = np.c_[plane, np.zeros(16)] @ _rotation(1).T + [0.3, -0.2, 0.1]
+    a, b = lattice_factors(tile)
+    assert a.shape == b.shape == (4, 3)
+    np.testing.assert_allclose((a[:, None] + b[None]).reshape(16, 3), tile, rtol=0, atol=1e-12)
+    columns = np.array([0.0, 1.0, 3.0, 6.0, 10.0, 15.0, 21.0, 28.0])
+    rect = np.c_[np.repeat([0.0, 2.0], 8), np.tile(columns, 2), np.zeros(16)]
+    a, b = lattice_factors(rect @ _rotation(2).T)
+    assert (len(a), len(b)) == (2, 8)
+    moved = tile.copy()
+    moved[5, 0] += 1e-6
+    rng = np.random.default_rng(3)
+    for bad in (tile[rng.permutation(16)], moved, rng.normal(size=(16, 3)), tile[:7]):
+        assert lattice_factors(bad) is None
+
+
+@pytest.mark.parametrize("field", ["3c196", "ncp"])
+def test_tile_factor_split_into_rows_and_columns_equals_the_element_sum(beams, field):
+    """The simulated MS's tiles are lattices, summed as rows times columns; the Jones
+    matrices equal those of the 16-element sum to 1e-12, at regular and irregular channels."""
+    fast, _ = beams[field]
+    assert (fast._layout_n == 4).all()
+    whole = copy.copy(fast)
+    whole._set_tile_layouts(fast._tile_elements, split=False)
+    assert (whole._layout_n[:, 0] == 16).all() and not whole._layout_n[:, 1].any()
+    ra, dec = _grid(fast)
+    for freq in ([150e6, 152e6, 154e6], [120e6, 151e6, 188e6]):
+        split = fast.jones([4.86234e9], freq, ra, dec)
+        ref = whole.jones([4.86234e9], freq, ra, dec)
+        np.testing.assert_allclose(split, ref, rtol=0, atol=1e-12 * np.abs(ref).max())

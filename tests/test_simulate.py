@@ -35,6 +35,25 @@ def test_default_layout_is_48_hba_core_fields():
         assert span == pytest.approx(3.75 * np.sqrt(2), rel=1e-5)
 
 
+def test_hba_tiles_are_lofarantpos_dipoles_as_an_exact_lattice():
+    """Every core field's tile equals lofarantpos's dipoles minus their tile centre (which
+    it rounds to float32) to 1e-6 m, every tile of the field, and is a product lattice to
+    1e-12 m in its order: the fast beam then sums 4 + 4 terms per tile (docs/beam.md)."""
+    import lofarantpos.db
+
+    from msleak.beam.lofar_fast import lattice_factors
+
+    db = lofarantpos.db.LofarAntennaDatabase()
+    for f in lofar_hba_core().fields:
+        tiles = np.asarray(db.antenna_pqr(f.name), dtype=float)
+        dipoles = np.asarray(db.hba_dipole_pqr(f.name), dtype=float).reshape(len(tiles), 16, 3)
+        pqr = f.tile_offsets @ f.axes.T
+        np.testing.assert_allclose(dipoles - tiles[:, None], np.broadcast_to(pqr, dipoles.shape),
+                                   rtol=0, atol=1e-6)
+        a, b = lattice_factors(f.tile_offsets, tol=1e-12)
+        assert len(a) == len(b) == 4
+
+
 def test_rows_times_channels(small_lofar_ms):
     time, a1, a2, interval = _main(small_lofar_ms, "TIME", "ANTENNA1", "ANTENNA2", "INTERVAL")
     nant = 6

@@ -9,7 +9,8 @@ done here for all directions, channels and stations of a time slot at once:
    group of antenna fields with identical coordinate axes (all LOFAR core HBA fields share
    one), with EveryBeam's ``phi - 5 pi / 4`` dipole orientation and its rotation to the sky
    (North, East) basis;
-3. tile (16 elements, towards LOFAR_TILE_BEAM_DIR) and station (tiles, towards DELAY_DIR)
+3. tile (16 elements, towards LOFAR_TILE_BEAM_DIR; a 4 x 4 lattice is summed as a row sum
+   times a column sum, :func:`lattice_factors`) and station (tiles, towards DELAY_DIR)
    array factors and the field phase-reference weights in numba.
 
 Accuracy against EveryBeam and speed: docs/beam.md ("Validation", "Speed").
@@ -28,7 +29,8 @@ from msleak.beam.lofar_array import LofarArray
 from msleak.beam.lofar_kernels import combine_jones, station_factors_kernel
 from msleak.errors import InputError
 
-__all__ = ["LofarFastBeam", "element_jones", "sky_rotation", "field_angles"]
+__all__ = ["LofarFastBeam", "element_jones", "sky_rotation", "field_angles",
+           "lattice_factors"]
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +96,47 @@ def element_jones(response, axes: np.ndarray, freq: np.ndarray, d: np.ndarray,
     out = h[..., :, :1] * rot[None, :, :1, :] + h[..., :, 1:] * rot[None, :, 1:, :]  # h @ rot
     out[:, dl[:, 2] < 0] = 0
     return out
+
+
+#: Largest distance (m) of an element from the product lattice :func:`lattice_factors` fits
+#: (a phase error of at most 2 pi 1e-9 / lambda, below 1e-7 rad at HBA frequencies).
+LATTICE_TOL = 1e-9
+
+
+def lattice_factors(offsets: np.ndarray, tol: float = LATTICE_TOL
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Tile element offsets as a product lattice: ``offsets[i * n1 + j] = a[i] + b[j]``.
+
+    The tile array factor of such a layout with equal weights is the product of the
+    averages over ``a`` and over ``b``: n0 + n1 terms instead of n0 n1 (a LOFAR HBA tile,
+    4 x 4 dipoles 1.25 m apart, is 8 instead of 16).
+
+    Parameters
+    ----------
+    offsets : (n, 3) float
+        Element offsets (m) in the order of the MS.
+    tol : float
+        Largest distance (m) of any offset from ``a[i] + b[j]``.
+
+    Returns
+    -------
+    (a, b) with shapes (n0, 3), (n1, 3), n0 n1 = n and n0 + n1 smallest, or None when no
+    split into two factors of at least two offsets fits (the elements are then summed
+    one by one).
+    """
+    offsets = np.asarray(offsets, dtype=np.float64)
+    n = len(offsets)
+    best = None
+    for n1 in range(2, n // 2 + 1):
+        if n % n1:
+            continue
+        grid = offsets.reshape(n // n1, n1, 3)
+        a = grid[:, 0]
+        b = grid[0] - grid[0, 0]
+        if np.abs(grid - (a[:, None] + b[None])).max() <= tol and (
+                best is None or n // n1 + n1 < len(best[0]) + len(best[1])):
+            best = (a, b)
+    return best
 
 
 def _uniform_step(freq: np.ndarray) -> tuple[bool, float]:
@@ -171,13 +214,24 @@ class LofarFastBeam(BeamModel):
                 self._group_axes.append(f.axes)
                 self._group_response.append(eb.ElementResponse.create("hamaker", s.name))
             self._field_group[n] = groups[key]
-        self._layout_pos = np.array(layout_pos)
-        self._layout_w = np.zeros(self._layout_pos.shape[:2])
-        for key, idx in layouts.items():
-            count = key[-1]
-            self._layout_w[idx, :count] = 1.0 / count
+        self._set_tile_layouts([elem[:key[-1]] for key, elem in zip(layouts, layout_pos)])
         log.info("fast LOFAR beam: %d stations, %d fields, %d element-response groups",
                  self.n_stations, nfield, len(self._group_axes))
+
+    def _set_tile_layouts(self, layouts: list[np.ndarray], split: bool = True) -> None:
+        """The kernel's tile element layouts: two factors each where
+        :func:`lattice_factors` finds them (and ``split``), else the elements alone."""
+        self._tile_elements = layouts
+        nelem = max([1] + [len(e) for e in layouts])
+        self._layout_pos = np.zeros((len(layouts), 2, nelem, 3))
+        self._layout_w = np.zeros((len(layouts), 2, nelem))
+        self._layout_n = np.zeros((len(layouts), 2), dtype=np.int64)
+        for i, elem in enumerate(layouts):
+            parts = (lattice_factors(elem) if split else None) or (elem,)
+            for k, part in enumerate(parts):
+                self._layout_pos[i, k, :len(part)] = part
+                self._layout_w[i, k, :len(part)] = 1.0 / len(part)
+                self._layout_n[i, k] = len(part)
 
     def _directions(self, time: float, ra: np.ndarray, dec: np.ndarray):
         u = radec_to_unit(ra, clip_pole(dec))
@@ -250,5 +304,6 @@ class LofarFastBeam(BeamModel):
         station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr,
                                field_sub, self._field_layout, self._field_scale,
                                self._field_up, self._tile_pos,
-                               self._tile_w, self._layout_pos, self._layout_w, factors)
+                               self._tile_w, self._layout_pos, self._layout_w,
+                               self._layout_n, factors)
         return ej

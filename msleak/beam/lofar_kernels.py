@@ -110,7 +110,7 @@ def _accumulate(acc, delta, nb, positions, weights, freq, uniform, df, zr, zi, s
 @njit(parallel=True, nogil=True, cache=True)
 def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, field_sub,
                            field_layout, field_scale, field_up, tile_pos, tile_w, layout_pos,
-                           layout_w, out):
+                           layout_w, layout_n, out):
     """Array factors of the stations of one time slot per element group, written into ``out``.
 
     Station ``i``'s Jones matrix is ``sum_u out[i, u] E_g(i, u)`` with ``E_g`` the element
@@ -140,8 +140,13 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
         Tile positions relative to the station phase reference (the field centre's offset
         plus the tile's, m; the field phase reference factor is part of the tile array
         factor) and normalised weights (zero-padded).
-    layout_pos, layout_w : (nlayout, nelem, 3), (nlayout, nelem) float64
-        Tile element offsets (m) and weights (1/16).
+    layout_pos, layout_w, layout_n : (nlayout, 2, nelem, 3), (nlayout, 2, nelem) float64,
+        (nlayout, 2) int64
+        Tile element layouts as a sum over two factors: the tile array factor is the
+        product of the weighted sums over ``layout_pos[l, 0, :layout_n[l, 0]]`` and over
+        ``layout_pos[l, 1, :layout_n[l, 1]]`` (offsets in m; no second factor where
+        ``layout_n[l, 1] == 0``). A 4 x 4 tile is 4 row offsets times 4 column offsets
+        (weights 1/4 each); any other layout is its elements (weights 1/16) alone.
     out : (nslot, nsub, nchan, ndir) complex64 or complex128
         nsub: the most element groups of any one station (1 for LOFAR HBA).
         Output; every element is written.
@@ -154,7 +159,7 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
     need = np.zeros(nlayout, np.bool_)
     for i in range(slot_fields.size):
         need[field_layout[slot_fields[i]]] = True
-    nmax = max(tile_pos.shape[1], layout_pos.shape[1], 1)
+    nmax = max(tile_pos.shape[1], layout_pos.shape[2], 1)
     # blocks of directions, so that writes to ``out`` run along its contiguous axis
     nblock = (ndir + _BLOCK - 1) // _BLOCK
     for blk in prange(nblock):
@@ -169,8 +174,8 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
         si = np.empty((nmax, nb))
         ds = np.empty((nb, 3))
         weight = np.empty(nb)
-        _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df,
-                      at, ds, zr, zi, sr, si)
+        _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, layout_n, freq,
+                      uniform, df, at, af, ds, zr, zi, sr, si)
         for slot in range(nslot):
             sst[:, :, :] = 0.0
             for i in range(slot_ptr[slot], slot_ptr[slot + 1]):
@@ -218,10 +223,11 @@ def combine_jones(factors, slot_groups, element_jones, out):
 
 
 @njit(inline="always")
-def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, df, at, ds,
-                  zr, zi, sr, si):
+def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, layout_n, freq, uniform, df,
+                  at, scratch, ds, zr, zi, sr, si):
     """Tile array factors ``at[layout, c, kl]`` of directions ``d[k0:k0 + nb]`` towards ``t0``,
-    and their offsets ``ds[kl] = s0 - d`` from the station beam-former direction."""
+    and their offsets ``ds[kl] = s0 - d`` from the station beam-former direction.
+    ``scratch`` is (nchan, nb) complex."""
     dt = np.empty((nb, 3))
     for kl in range(nb):
         for i in range(3):
@@ -229,8 +235,15 @@ def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, freq, uniform, 
             dt[kl, i] = t0[i] - d[k0 + kl, i]
     for lay in range(layout_pos.shape[0]):
         if need[lay]:
-            _accumulate(at[lay], dt, nb, layout_pos[lay], layout_w[lay], freq, uniform, df,
-                        zr, zi, sr, si)
+            n0, n1 = layout_n[lay, 0], layout_n[lay, 1]
+            _accumulate(at[lay], dt, nb, layout_pos[lay, 0, :n0], layout_w[lay, 0, :n0], freq,
+                        uniform, df, zr, zi, sr, si)
+            if n1 > 0:
+                _accumulate(scratch, dt, nb, layout_pos[lay, 1, :n1], layout_w[lay, 1, :n1],
+                            freq, uniform, df, zr, zi, sr, si)
+                for c in range(freq.size):
+                    for kl in range(nb):
+                        at[lay, c, kl] *= scratch[c, kl]
 
 
 @njit(parallel=True, nogil=True, cache=True)

@@ -20,7 +20,7 @@ import numpy as np
 from msleak.errors import InputError
 
 __all__ = ["FieldLayout", "Layout", "lofar_hba_core", "read_layout_file", "enu_to_itrf",
-           "LOFAR_CORE_STATIONS", "lofar_reference_position"]
+           "LOFAR_CORE_STATIONS", "lofar_reference_position", "hba_tile_pqr"]
 
 LOFAR_CORE_STATIONS = (
     "CS001", "CS002", "CS003", "CS004", "CS005", "CS006", "CS007", "CS011", "CS013",
@@ -107,6 +107,27 @@ def lofar_reference_position() -> np.ndarray:
     return np.array([loc.x.to_value(u.m), loc.y.to_value(u.m), loc.z.to_value(u.m)])
 
 
+#: Distance between neighbouring dipoles of a LOFAR HBA tile, m
+HBA_DIPOLE_SPACING = 1.25
+
+
+def hba_tile_pqr(rotation: float) -> np.ndarray:
+    """The 16 dipole offsets (16, 3) of a LOFAR HBA tile from its centre in the field's PQR
+    frame (m): a 4 x 4 lattice :data:`HBA_DIPOLE_SPACING` apart, turned by ``rotation`` (rad,
+    lofarantpos's ``hba_rotations``), in lofarantpos's order (rows from +Q to -Q, each from
+    -P to +P).
+
+    lofarantpos's own ``hba_dipole_pqr`` gives the same lattice rounded to float32 (about
+    1e-7 m); this is it in float64, so that the offsets are a product lattice
+    ``e[4 i + j] = a[i] + b[j]`` to rounding, as the fast beam evaluator sums them.
+    """
+    steps = HBA_DIPOLE_SPACING * np.array([-1.5, -0.5, 0.5, 1.5])
+    p = np.tile(steps, 4)
+    q = np.repeat(steps[::-1], 4)
+    c, s = np.cos(rotation), np.sin(rotation)
+    return np.stack([c * p + s * q, -s * p + c * q, np.zeros(16)], axis=-1)
+
+
 def lofar_hba_core(pattern: str = "CS*HBA*") -> Layout:
     """The LOFAR HBA core: each core station as two fields HBA0, HBA1 (48 antennas).
 
@@ -126,11 +147,8 @@ def lofar_hba_core(pattern: str = "CS*HBA*") -> Layout:
     for name in names:
         centre = np.asarray(db.phase_centres[name], dtype=float)
         pqr_to_etrs = np.asarray(db.pqr_to_etrs[name], dtype=float)
-        tiles_pqr = np.asarray(db.antenna_pqr(name), dtype=float)
         tiles_etrs = np.asarray(db.antenna_etrs(name), dtype=float)
-        dipoles = np.asarray(db.hba_dipole_pqr(name), dtype=float).reshape(len(tiles_pqr), 16, 3)
-        tile_pqr = (dipoles - tiles_pqr[:, None, :]).mean(axis=0)
-        tile_pqr[:, 2] = 0.0
+        tile_pqr = hba_tile_pqr(float(db.hba_rotations[name]))
         fields.append(FieldLayout(
             name=name, position=centre, axes=pqr_to_etrs.T.copy(),
             element_offsets=tiles_etrs - centre[None, :],
