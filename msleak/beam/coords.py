@@ -17,6 +17,8 @@ import threading
 
 import numpy as np
 
+from msleak.io.measures import set_epoch
+
 __all__ = [
     "LOFAR_FRAME_POSITION_ITRF",
     "POLE_EPS_RAD",
@@ -74,14 +76,11 @@ class _Casacore:
         self.dm = measures()
         x, y, z = (float(c) for c in position_itrf)
         self.dm.do_frame(self.dm.position("ITRF", f"{x!r}m", f"{y!r}m", f"{z!r}m"))
-        self._time = None
         #: casacore's measures server is not thread-safe: hold this around set_time+convert
         self.lock = threading.Lock()
 
     def set_time(self, time_mjd_s: float) -> None:
-        if time_mjd_s != self._time:
-            self.dm.do_frame(self.dm.epoch("UTC", self._q(float(time_mjd_s), "s")))
-            self._time = time_mjd_s
+        set_epoch(self.dm, time_mjd_s)
 
     def convert(self, ra, dec) -> np.ndarray:
         ra = np.atleast_1d(np.asarray(ra, dtype=float))

@@ -42,6 +42,7 @@ from msleak.io.ms import (
     read_used_antennas,
     resolve_field,
 )
+from msleak.io.measures import set_epoch
 from msleak.io.products import call_record, save_product, stamp
 
 __all__ = ["BASES", "Basis", "MAP_BEAMS", "sin_grid", "hour_angle_h", "times_for_hour_angles",
@@ -97,6 +98,7 @@ def hour_angle_h(times_mjd_s, ra: float, position_itrf) -> np.ndarray:
     dm.do_frame(dm.position("ITRF", f"{x!r}m", f"{y!r}m", f"{z!r}m"))
     out = []
     for t in np.atleast_1d(times_mjd_s):
+        set_epoch(dm, t)
         last = dm.measure(dm.epoch("UTC", quantity(float(t), "s")), "LAST")["m0"]["value"]
         lst_h = (last % 1.0) * 24
         out.append((lst_h - np.degrees(ra) / 15 + 12) % 24 - 12)

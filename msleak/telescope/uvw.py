@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from msleak.io.measures import set_epoch
+
 __all__ = ["antenna_uvw"]
 
 
@@ -39,7 +41,7 @@ def antenna_uvw(positions_itrf: np.ndarray, times_mjd_s: np.ndarray, ra: float,
                            qa.quantity(rel[:, 2], "m"))
     out = np.empty((len(times_mjd_s), len(rel), 3))
     for k, t in enumerate(np.asarray(times_mjd_s, dtype=float)):
-        dm.do_frame(dm.epoch("UTC", qa.quantity(t, "s")))
+        set_epoch(dm, t)
         xyz = dm.to_uvw(baseline)["xyz"].get_value()
         out[k] = np.asarray(xyz, dtype=float).reshape(-1, 3)
     return out
