@@ -182,7 +182,7 @@ def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
     args = ["predict", ms]
     for sky, col in zip(skies, cols):
         args += ["--sky", sky, "--column", col]
-    args += [*opts(c.predict), "--no-progress"]
+    args += [*opts(c.predict), "--double", "--no-progress"]
     prelude, extra = "", None
     if c.patch.startswith("frozen"):
         prelude, extra = PATCH_FROZEN, [repr(frozen_time(ms, c.patch))]

@@ -130,3 +130,17 @@ def test_quick_keeps_the_settings_given():
     cfg = ForecastConfig(outdir="x", quick=True, nchan=12)
     assert (cfg.nchan, cfg.stations, cfg.seeds) == (12, 8, 2)
     assert ForecastConfig(outdir="x").stations == 48
+
+
+def test_predicts_in_double_unless_no_double(tmp_path):
+    """The forecast's predicts run in complex128 arithmetic by default (the rounding floor
+    of complex64 sets P_I in about half the voxels, docs/leakage.md); --no-double drops it."""
+    from msleak.study.forecast import ForecastConfig, forecast_steps
+
+    for double in (True, False):
+        cfg = ForecastConfig(outdir=tmp_path / "f", telescopes=("lofar",), quick=True,
+                             double=double)
+        predicts = [s.args for s in forecast_steps(cfg) if s.args[0] == "predict"]
+        assert len(predicts) == 1 and ("--double" in predicts[0]) == double
+    result = CliRunner().invoke(cli, ["forecast", "--help"])
+    assert "--double / --no-double" in result.output and "[default: double]" in result.output

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import study_invoker, study_workers_option
+from msleak.cli._common import study_double_option, study_invoker, study_workers_option
 from msleak.study.forecast import SETUPS, ForecastConfig, run_forecast
 
 
@@ -43,6 +43,7 @@ def _telescopes(ctx, param, value):
 @click.option("--quick", is_flag=True, help="Test size for every setting not given: 8 "
               "stations, 0.2 h at 360 s, 10 channels, a 6 deg sky, 2 realisations (30 s on "
               "2 cores).")
+@study_double_option
 @study_workers_option("the telescopes' predicts overlap, as do the grids and power spectra "
                       "of a telescope")
 @click.option("--overwrite", is_flag=True,
@@ -50,7 +51,7 @@ def _telescopes(ctx, param, value):
               "resumes).")
 @click.pass_context
 def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interval_s, nchan,
-             quick, workers, overwrite):
+             quick, double, workers, overwrite):
     """Leakage forecast: the same sky realisations through LOFAR (3C196), SKA-Low, HERA and
     the MWA (EoR0) with matched settings, each with its own beam model and the beam at the
     phase centre removed; OUTDIR/forecast.md, forecast.csv and figures/forecast.png compare
@@ -66,7 +67,7 @@ def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interva
     """
     cfg = ForecastConfig(outdir=Path(outdir), telescopes=telescopes, seed=seed, seeds=seeds,
                          stations=stations, duration_h=duration_h, interval_s=interval_s,
-                         nchan=nchan, quick=quick)
+                         nchan=nchan, quick=quick, double=double)
     with study_invoker(ctx, "forecast", workers) as (invoke, workers):
         report = run_forecast(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"forecast: {report}")

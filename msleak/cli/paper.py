@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import study_invoker, study_workers_option
+from msleak.cli._common import study_double_option, study_invoker, study_workers_option
 from msleak.study.config import StudyConfig
 from msleak.study.pipeline import run_study
 
@@ -56,6 +56,7 @@ def _observed(ctx, param, values):
               help="Override the integration time [120 s; --quick: 600 s].")
 @click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
               help="Override the number of channels of the MSs and the sky [50].")
+@study_double_option
 @study_workers_option("the two fields' predicts overlap, as do the grid and beam maps of "
                       "a field")
 @click.option("--overwrite", is_flag=True,
@@ -63,7 +64,7 @@ def _observed(ctx, param, values):
               "(without it an existing OUTDIR resumes).")
 @click.pass_context
 def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, duration_h,
-          interval_s, nchan, workers, overwrite):
+          interval_s, nchan, double, workers, overwrite):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
@@ -79,7 +80,7 @@ def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, dur
     cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed, seeds=seeds,
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
-                      interval_s=interval_s, nchan=nchan)
+                      interval_s=interval_s, nchan=nchan, double=double)
     with study_invoker(ctx, "paper", workers) as (invoke, workers):
         report = run_study(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"report: {report}")

@@ -28,6 +28,8 @@ class StudyConfig:
     duration_h: float | None = None
     interval_s: float | None = None
     nchan: int | None = None
+    #: predict in complex128 arithmetic (docs/leakage.md, "The numerical floor")
+    double: bool = True
 
     @property
     def simulate_args(self) -> list:

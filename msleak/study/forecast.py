@@ -98,6 +98,8 @@ class ForecastConfig:
     interval_s: float | None = None
     nchan: int | None = None
     quick: bool = False
+    #: predict in complex128 arithmetic (docs/leakage.md, "The numerical floor")
+    double: bool = True
 
     def __post_init__(self):
         self.telescopes = tuple(dict.fromkeys(self.telescopes))
@@ -156,7 +158,7 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
                    "--freq-min", setup.freq_min(cfg.nchan), "--nchan", cfg.nchan,
                    "--chan-width", _CHAN_WIDTH,
                    "--stations", ",".join(names), "--overwrite"], outputs=[ms])]
-    predict = ["predict", ms, "--beam", setup.beam]
+    predict = ["predict", ms, "--beam", setup.beam, *(["--double"] if cfg.double else [])]
     cell, uv_range = setup.uv_grid(cfg.nchan)
     grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
             f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]
