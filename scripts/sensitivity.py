@@ -175,7 +175,8 @@ def frozen_time(ms: Path, patch: str) -> float:
 
 
 def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
-    pkey = f"seed{c.seed}_{key(c.sky)}_{key(c.predict)}_{c.patch or 'plain'}"
+    # "c128": predicts in complex128 arithmetic (--double), not reused from complex64 runs
+    pkey = f"seed{c.seed}_{key(c.sky)}_{key(c.predict)}_{c.patch or 'plain'}_c128"
     tag = hashlib.sha1(pkey.encode()).hexdigest()[:8].upper()
     cols = [f"M{tag}_{label.upper()}" for label, _ in FOVS]
     done = ms.parent / f"{ms.stem}.{pkey}.done"

@@ -98,8 +98,9 @@ def element_jones(response, axes: np.ndarray, freq: np.ndarray, d: np.ndarray,
     return out
 
 
-#: Largest distance (m) of an element from the product lattice :func:`lattice_factors` fits
-#: (a phase error of at most 2 pi 1e-9 / lambda, below 1e-7 rad at HBA frequencies).
+#: Largest difference (m, per coordinate) of an element from the product lattice
+#: :func:`lattice_factors` fits: a phase error below 2 pi sqrt(3) 1e-9 / lambda, 1e-8 rad
+#: at HBA frequencies.
 LATTICE_TOL = 1e-9
 
 
@@ -116,7 +117,7 @@ def lattice_factors(offsets: np.ndarray, tol: float = LATTICE_TOL
     offsets : (n, 3) float
         Element offsets (m) in the order of the MS.
     tol : float
-        Largest distance (m) of any offset from ``a[i] + b[j]``.
+        Largest difference (m, per coordinate) of any offset from ``a[i] + b[j]``.
 
     Returns
     -------

@@ -146,7 +146,8 @@ def station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr, 
         product of the weighted sums over ``layout_pos[l, 0, :layout_n[l, 0]]`` and over
         ``layout_pos[l, 1, :layout_n[l, 1]]`` (offsets in m; no second factor where
         ``layout_n[l, 1] == 0``). A 4 x 4 tile is 4 row offsets times 4 column offsets
-        (weights 1/4 each); any other layout is its elements (weights 1/16) alone.
+        (weights 1/4 each); a layout that is no product lattice is its n elements (weights 1/n)
+        alone (:func:`msleak.beam.lofar_fast.lattice_factors`).
     out : (nslot, nsub, nchan, ndir) complex64 or complex128
         nsub: the most element groups of any one station (1 for LOFAR HBA).
         Output; every element is written.
