@@ -140,6 +140,23 @@ def lattice_factors(offsets: np.ndarray, tol: float = LATTICE_TOL
     return best
 
 
+def _tile_layout_arrays(layouts: list[np.ndarray]
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``layout_pos, layout_w, layout_n`` of :func:`station_factors_kernel` for tile element
+    offsets ``layouts`` (each (n, 3), m): two factors where :func:`lattice_factors` finds
+    them, else the elements alone."""
+    nelem = max([1] + [len(e) for e in layouts])
+    pos = np.zeros((len(layouts), 2, nelem, 3))
+    weight = np.zeros((len(layouts), 2, nelem))
+    count = np.zeros((len(layouts), 2), dtype=np.int64)
+    for i, elem in enumerate(layouts):
+        for k, part in enumerate(lattice_factors(elem) or (elem,)):
+            pos[i, k, :len(part)] = part
+            weight[i, k, :len(part)] = 1.0 / len(part)
+            count[i, k] = len(part)
+    return pos, weight, count
+
+
 def _uniform_step(freq: np.ndarray) -> tuple[bool, float]:
     if freq.size < 2:
         return True, 0.0
@@ -177,7 +194,6 @@ class LofarFastBeam(BeamModel):
         fields = [(i, s, f) for i, s in enumerate(array.stations) for f in s.fields]
         nfield = len(fields)
         ntile = max(len(f.tile_offsets) for _, _, f in fields)
-        nelem = max(len(f.element_offsets) for _, _, f in fields)
         self._field_station = np.array([i for i, _, _ in fields], dtype=np.int64)
         self._field_scale = np.array([1.0 / len(s.fields) for _, s, _ in fields])
         self._field_up = np.array([f.axes[2] for _, _, f in fields])
@@ -202,9 +218,8 @@ class LofarFastBeam(BeamModel):
                 log.warning("station %s field %s has every tile flagged", s.name, f.name)
             else:
                 self._tile_w[n, :len(enabled)] = enabled / enabled.sum()
-            elem = np.zeros((nelem, 3))
-            elem[:len(f.element_offsets)] = f.element_offsets @ metric
-            key = elem.tobytes() + bytes([len(f.element_offsets)])
+            elem = np.ascontiguousarray(f.element_offsets @ metric)
+            key = elem.tobytes()  # its length tells the number of elements
             if key not in layouts:
                 layouts[key] = len(layout_pos)
                 layout_pos.append(elem)
@@ -215,24 +230,9 @@ class LofarFastBeam(BeamModel):
                 self._group_axes.append(f.axes)
                 self._group_response.append(eb.ElementResponse.create("hamaker", s.name))
             self._field_group[n] = groups[key]
-        self._set_tile_layouts([elem[:key[-1]] for key, elem in zip(layouts, layout_pos)])
+        self._layout_pos, self._layout_w, self._layout_n = _tile_layout_arrays(layout_pos)
         log.info("fast LOFAR beam: %d stations, %d fields, %d element-response groups",
                  self.n_stations, nfield, len(self._group_axes))
-
-    def _set_tile_layouts(self, layouts: list[np.ndarray], split: bool = True) -> None:
-        """The kernel's tile element layouts: two factors each where
-        :func:`lattice_factors` finds them (and ``split``), else the elements alone."""
-        self._tile_elements = layouts
-        nelem = max([1] + [len(e) for e in layouts])
-        self._layout_pos = np.zeros((len(layouts), 2, nelem, 3))
-        self._layout_w = np.zeros((len(layouts), 2, nelem))
-        self._layout_n = np.zeros((len(layouts), 2), dtype=np.int64)
-        for i, elem in enumerate(layouts):
-            parts = (lattice_factors(elem) if split else None) or (elem,)
-            for k, part in enumerate(parts):
-                self._layout_pos[i, k, :len(part)] = part
-                self._layout_w[i, k, :len(part)] = 1.0 / len(part)
-                self._layout_n[i, k] = len(part)
 
     def _directions(self, time: float, ra: np.ndarray, dec: np.ndarray):
         u = radec_to_unit(ra, clip_pole(dec))
