@@ -218,9 +218,12 @@ def test_observed_grid_step_runs_on_plain_q_and_u_cubes(tmp_path, monkeypatch):
 def test_ctrl_c_stops_the_worker_steps_and_a_rerun_finishes(tmp_path):
     """SIGINT to `msleak paper --workers 2` while predict runs in a worker: exit 130 with
     the interrupt message, the finished steps recorded and the interrupted one not; the
-    same command then finishes the study (no worker is left holding the MS)."""
+    same command then finishes the study (no worker is left holding the MS). Ten times
+    TINY's time slots make predict last 2.4 s (measured), far longer than the 0.2 s in
+    which the study reacts to a Ctrl-C."""
     out = tmp_path / "study"
-    cmd = [sys.executable, "-m", "msleak", "paper", str(out), *TINY, "--workers", "2"]
+    cmd = [sys.executable, "-m", "msleak", "paper", str(out), *TINY, "--interval", "60",
+           "--workers", "2"]
     env = {**os.environ, "MPLBACKEND": "Agg"}
     proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
                             text=True)

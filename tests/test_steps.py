@@ -188,6 +188,36 @@ def test_an_interrupt_stops_the_children_and_keeps_what_finished(tmp_path):
     assert "x1" in state and "x2" not in state and "x3" not in state
 
 
+def test_a_ctrl_c_handed_to_a_step_thread_stops_the_running_steps_at_once(tmp_path):
+    """The kernel gives a process's SIGINT to any of its threads. One given to a thread
+    that runs a step must stop the running steps within a second, not when they end."""
+    import signal
+    import threading
+    import time
+
+    released = threading.Event()
+
+    class Invoke:
+        stopped_after = None
+
+        def __call__(self, args):
+            time.sleep(0.5)                        # the runner is waiting for its steps
+            signal.pthread_kill(threading.get_ident(), signal.SIGINT)   # to this thread
+            released.wait(timeout=30)              # a long step, until stop() ends it
+
+        def stop(self):
+            self.stopped_after = time.monotonic() - t0
+            released.set()
+
+    invoke = Invoke()
+    out = tmp_path / "a"
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        StepRunner(tmp_path).run_all([Step("a", ["a", out], outputs=[out])], invoke,
+                                     workers=2)
+    assert invoke.stopped_after is not None and invoke.stopped_after < 5
+
+
 def test_process_invoker_runs_msleak_and_prefixes_its_output(tmp_path, capfd):
     out = tmp_path / "sky.fits"
     with steps.ProcessInvoker(["-q"], "paper", workers=1) as invoke:

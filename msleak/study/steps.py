@@ -34,6 +34,8 @@ from msleak.errors import MsleakError
 __all__ = ["Step", "StepRunner", "ProcessInvoker", "step_failed", "dependencies"]
 
 log = logging.getLogger(__name__)
+#: how often (s) the thread that runs steps at once looks for a Ctrl-C
+_POLL_S = 0.2
 
 
 @dataclass
@@ -186,7 +188,9 @@ class StepRunner:
                             running[pool.submit(self.run, step, invoke)] = step
                     if not running:
                         break
-                    done, _ = wait(running, return_when=FIRST_COMPLETED)
+                    # a timeout, not a bare wait: a SIGINT that the kernel hands to a step
+                    # thread raises in this thread only once it runs Python code again
+                    done, _ = wait(running, timeout=_POLL_S, return_when=FIRST_COMPLETED)
                     for future in done:
                         step = running.pop(future)
                         try:
@@ -244,12 +248,12 @@ class ProcessInvoker:
         worker = self._idle.get()
         died = False
         try:
-            if self._closed:
-                raise MsleakError(f"`msleak {self.command}` is stopping")
             if worker is None or not worker[0].is_alive():
                 worker = self._start()
             proc, conn = worker
-            with self._lock:
+            with self._lock:                       # stop() signals it, or it never runs
+                if self._closed:
+                    raise MsleakError(f"`msleak {self.command}` is stopping")
                 self._busy.add(proc)
             try:
                 conn.send(([*self.global_args, *map(str, args)], f"[{label or args[0]}] "))
@@ -276,8 +280,8 @@ class ProcessInvoker:
 
     def stop(self) -> None:
         """Interrupt the running steps (SIGINT, as a Ctrl-C would); no step starts after."""
-        self._closed = True
         with self._lock:
+            self._closed = True
             busy = list(self._busy)
         for proc in busy:
             if proc.is_alive():
