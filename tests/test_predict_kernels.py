@@ -102,6 +102,52 @@ def test_left_correction_irregular_channels_and_broadcast_beam():
     assert np.abs(rows - ref_rows).max() <= 1e-10 * np.abs(ref).max()
 
 
+def _bad_jones(case, nst=4, nt=2, nch=3, nd=5):
+    """A beam argument for a 4-station, 2-time, 3-channel, 5-direction call, wrong in one
+    way; the message predict_gram must give."""
+    z = np.zeros
+    ok_scalar, ok_element = z((nst, nt, nch, nd), complex), z((2, nt, nch, nd, 2, 2), complex)
+    group = np.array([0, 1, 1, 0])
+    return {
+        "full: 5 axes": (z((nst, nt, nch, nd, 4), complex), r"jones has shape"),
+        "full: not 2x2": (z((nst, nt, nch, nd, 2, 3), complex), r"jones has shape"),
+        "full: directions": (z((nst, nt, nch, nd + 1, 2, 2), complex), r"jones has shape"),
+        "full: stations": (z((3, nt, nch, nd, 2, 2), complex),
+                           r"jones axis 0 has length 3, expected 1 or 4"),
+        "full: channels": (z((nst, nt, 2, nd, 2, 2), complex),
+                           r"jones axis 2 has length 2, expected 1 or 3"),
+        "scalar: directions": (JonesFactors(z((nst, nt, nch, 4), complex), ok_element, group),
+                               r"jones.scalar has shape"),
+        "scalar: times": (JonesFactors(z((nst, 3, nch, nd), complex), ok_element, group),
+                          r"jones.scalar axis 1 has length 3, expected 1 or 2"),
+        "element: not 2x2": (JonesFactors(ok_scalar, z((2, nt, nch, nd, 2), complex), group),
+                             r"jones.element has shape"),
+        "element: channels": (JonesFactors(ok_scalar, z((2, nt, 4, nd, 2, 2), complex), group),
+                              r"jones.element axis 2 has length 4, expected 1 or 3"),
+        "group: length": (JonesFactors(ok_scalar, ok_element, np.array([0, 1, 1])),
+                          r"jones.group must be 4 indices into jones.element's 2 groups"),
+        "group: range": (JonesFactors(ok_scalar, ok_element, np.array([0, 1, 2, 0])),
+                         r"jones.group must be 4 indices"),
+        "group: negative": (JonesFactors(ok_scalar, ok_element, np.array([0, -1, 1, 0])),
+                            r"jones.group must be 4 indices"),
+    }[case]
+
+
+@pytest.mark.parametrize("case", ["full: 5 axes", "full: not 2x2", "full: directions",
+                                  "full: stations", "full: channels", "scalar: directions",
+                                  "scalar: times", "element: not 2x2", "element: channels",
+                                  "group: length", "group: range", "group: negative"])
+def test_a_beam_of_the_wrong_shape_is_refused_by_name(case):
+    """Each malformed beam argument (full Jones or factors) raises a ValueError naming the
+    array, the axis and the length expected, before the kernel runs."""
+    rng = np.random.default_rng(5)
+    xyz, lmn1, freq, iquv, _ = _setup(rng)
+    w, sign = K.brightness_factors(iquv)
+    jones, message = _bad_jones(case)
+    with pytest.raises(ValueError, match=message):
+        K.predict_gram(jones, xyz, lmn1, freq, w, sign, dtype=np.complex128)
+
+
 def test_no_beam_point_source_at_centre():
     """Identity beam, 1 Jy Q at the phase centre: XX = 1, YY = -1, XY = YX = 0."""
     rng = np.random.default_rng(3)
