@@ -175,15 +175,16 @@ def frozen_time(ms: Path, patch: str) -> float:
 
 
 def predicted(run: Runner, c: Config, ms: Path, skies: list[Path]) -> list[str]:
-    # "c128": predicts in complex128 arithmetic (--double), not reused from complex64 runs
-    pkey = f"seed{c.seed}_{key(c.sky)}_{key(c.predict)}_{c.patch or 'plain'}_c128"
+    # "c128col": predicts in complex128 arithmetic into complex128 columns (--double
+    # --double-column), not reused from runs that rounded to complex64
+    pkey = f"seed{c.seed}_{key(c.sky)}_{key(c.predict)}_{c.patch or 'plain'}_c128col"
     tag = hashlib.sha1(pkey.encode()).hexdigest()[:8].upper()
     cols = [f"M{tag}_{label.upper()}" for label, _ in FOVS]
     done = ms.parent / f"{ms.stem}.{pkey}.done"
     args = ["predict", ms]
     for sky, col in zip(skies, cols):
         args += ["--sky", sky, "--column", col]
-    args += [*opts(c.predict), "--double", "--no-progress"]
+    args += [*opts(c.predict), "--double", "--double-column", "--no-progress"]
     prelude, extra = "", None
     if c.patch.startswith("frozen"):
         prelude, extra = PATCH_FROZEN, [repr(frozen_time(ms, c.patch))]

@@ -133,14 +133,16 @@ def test_quick_keeps_the_settings_given():
 
 
 def test_predicts_in_double_unless_no_double(tmp_path):
-    """The forecast's predicts run in complex128 arithmetic by default (the rounding floor
-    of complex64 sets P_I in about half the voxels, docs/leakage.md); --no-double drops it."""
+    """The forecast's predicts run in complex128 arithmetic into complex128 columns by
+    default (complex64 rounding sets P_I of the faintest voxels, docs/leakage.md);
+    --no-double drops both."""
     from msleak.study.forecast import ForecastConfig, forecast_steps
 
     for double in (True, False):
         cfg = ForecastConfig(outdir=tmp_path / "f", telescopes=("lofar",), quick=True,
                              double=double)
         predicts = [s.args for s in forecast_steps(cfg) if s.args[0] == "predict"]
-        assert len(predicts) == 1 and ("--double" in predicts[0]) == double
+        assert len(predicts) == 1
+        assert ("--double" in predicts[0]) == ("--double-column" in predicts[0]) == double
     result = CliRunner().invoke(cli, ["forecast", "--help"])
     assert "--double / --no-double" in result.output and "[default: double]" in result.output

@@ -49,6 +49,7 @@ OPTIONS = {
     "predict": {"--fov": FLOATS, "--beam": ["none", "dipole", "magic"], "--column": WORDS,
                 "--memory-limit": BAD + ["1KB", "2GB", "1.5M"], "--field": WORDS + ["0"],
                 "--spw": WORDS + ["0"], "--interpolate-frequency": "flag", "--double": "flag",
+                "--double-column": "flag",
                 "--restart": "flag", "--no-centre-correction": "flag",
                 "--workers": INTS},
     "grid": {"--column": WORDS, "--cell": FLOATS, "--uv-range": PAIRS,

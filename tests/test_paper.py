@@ -170,16 +170,18 @@ def test_steps_that_rerun_pass_overwrite(tmp_path):
 
 
 def test_predicts_in_double_unless_no_double(tmp_path):
-    """Every predict of the study runs in complex128 arithmetic by default (the rounding
-    floor of complex64 sets P_I in about half the voxels, docs/leakage.md); --no-double
-    drops it from each, and nothing else changes."""
+    """Every predict of the study runs in complex128 arithmetic into complex128 columns by
+    default (complex64 rounding sets P_I of the faintest voxels, docs/leakage.md);
+    --no-double drops both from each, and nothing else changes."""
     both = {}
     for double in (True, False):
         cfg = StudyConfig(outdir=tmp_path / "study", seeds=2, double=double)
         both[double] = [s.args for s in study_steps(cfg)]
         predicts = [a for a in both[double] if a[0] == "predict"]
-        assert len(predicts) == 2 and all(("--double" in a) == double for a in predicts)
-    assert [[x for x in a if x != "--double"] for a in both[True]] == both[False]
+        assert len(predicts) == 2
+        assert all(("--double" in a) == ("--double-column" in a) == double for a in predicts)
+    assert [[x for x in a if x not in ("--double", "--double-column")]
+            for a in both[True]] == both[False]
     result = CliRunner().invoke(cli, ["paper", "--help"])
     assert "--double / --no-double" in result.output and "[default: double]" in result.output
 

@@ -236,6 +236,45 @@ def test_data_untouched_second_column_and_provenance(small_lofar_ms, tmp_path):
     assert state["sky"] == str(sky.resolve()) and state["msleak_version"]
 
 
+def test_double_column_stores_the_complex128_values_and_refuses_a_complex64_one(
+        small_lofar_ms, tmp_path):
+    """--double-column creates a complex128 (DComplex) column holding bit for bit what
+    predict returns in complex128; DATA keeps its type; the same run into a complex64
+    column differs only by complex64 rounding; --double-column refuses an existing
+    complex64 column in one line and writes an existing complex128 one."""
+    ra0, dec0 = _phase_centre(small_lofar_ms)
+    sky = _write_sky(tmp_path / "c.skymodel", [(ra0 + 0.03, dec0 - 0.02, 1.0, 0.7, -0.4, 0.1),
+                                               (ra0 - 0.05, dec0 + 0.01, 0.0, 0.3, 0.9, 0.0)])
+    res = _invoke("predict", small_lofar_ms, "--sky", sky, "--beam", "dipole", "--column",
+                  "MODEL_D", "--double-column")
+    assert res.exit_code == 0, res.output
+    with _table(small_lofar_ms) as t:
+        assert t.getcoldesc("MODEL_D")["valueType"] == "dcomplex"
+        assert t.getcoldesc("DATA")["valueType"] == "complex"
+        assert t.getcolkeyword("MODEL_D", "MSLEAK_PREDICT")["precision"] == "complex128"
+    stored = _col(small_lofar_ms, "MODEL_D")
+    ref = run_predict(small_lofar_ms, sky, column=None, beam="dipole", double=True)
+    assert stored.dtype == np.complex128 and np.abs(stored).max() > 0.1
+    np.testing.assert_array_equal(stored[ref["row"].values], ref.values)
+    res = _invoke("predict", small_lofar_ms, "--sky", sky, "--beam", "dipole", "--column",
+                  "MODEL_S", "--double")
+    assert res.exit_code == 0, res.output
+    single = _col(small_lofar_ms, "MODEL_S")
+    assert single.dtype == np.complex64
+    diff = np.abs(single - stored).max()
+    assert 0 < diff <= 2 ** -23 * np.abs(stored).max()       # one complex64 rounding
+    res = _invoke("predict", small_lofar_ms, "--sky", sky, "--beam", "dipole", "--column",
+                  "MODEL_S", "--double-column")
+    assert res.exit_code == 2 and "MODEL_S exists as complex64" in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    res = _invoke("predict", small_lofar_ms, "--sky", sky, "--beam", "dipole", "--column",
+                  "MODEL_D", "--double-column", "--restart")
+    assert res.exit_code == 0, res.output
+    np.testing.assert_array_equal(_col(small_lofar_ms, "MODEL_D"), stored)
+    with pytest.raises(InputError, match="double_column=True sets the type"):
+        run_predict(small_lofar_ms, sky, column=None, beam="dipole", double_column=True)
+
+
 def test_interrupted_run_is_marked_and_resumed(small_lofar_ms, tmp_path, monkeypatch):
     ra0, dec0 = _phase_centre(small_lofar_ms)
     sky = _write_sky(tmp_path / "c.skymodel", [(ra0 + 0.02, dec0 - 0.01, 0.0, 1.0, 0.3, 0.0)])

@@ -123,10 +123,11 @@ def study_workers_option(overlap: str):
 #: ``--double/--no-double`` of the multi-step commands (paper, forecast)
 study_double_option = click.option(
     "--double/--no-double", default=True, show_default=True,
-    help="Predict in complex128 arithmetic (the columns stay complex64, like DATA). "
-         "complex64 sums over thousands of sources leave a rounding floor that sets the "
-         "Stokes I power of about half the voxels: --no-double predicts faster but moved "
-         "the 15 deg 3C196 median of L_I by 1.5 % (docs/leakage.md).")
+    help="Predict in complex128 arithmetic into complex128 columns (msleak predict "
+         "--double --double-column). complex64 rounding sets the Stokes I power of the "
+         "faintest voxels: --no-double predicts faster into half the disk, but moved the "
+         "15 deg 3C196 median of L_I by 1.5 % and the forecast's LOFAR median by 44 % "
+         "(docs/leakage.md).")
 
 
 @contextlib.contextmanager

@@ -51,6 +51,10 @@ def _split(_ctx, _param, value):
                    "requiring matching channels (relative tolerance 1e-6).")
 @click.option("--double", is_flag=True,
               help="complex128 arithmetic (default complex64; phases always in float64).")
+@click.option("--double-column", is_flag=True,
+              help="Create the columns as complex128 (casacore DComplex) to keep --double's "
+                   "values (implies --double). For columns msleak grid reads: DP3, WSClean "
+                   "and CASA expect complex64 visibility columns.")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
               help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
                    "computed at the same time (per worker process with a scheduler address).")
@@ -66,7 +70,7 @@ def _split(_ctx, _param, value):
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
 def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, centre_correction, interpolate_frequency,
-            double, memory_limit, overwrite_data, field, spw, restart, progress, scheduler,
+            double, double_column, memory_limit, overwrite_data, field, spw, restart, progress, scheduler,
             workers):
     """Predict the visibilities of SKY through the station beams into MS (one or more
     Measurement Sets, e.g. one per subband; each gets the same skies).
@@ -100,7 +104,7 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, cent
                   fov=list(fov) or None, beam=beam, diameter=diameter,
                   element_model=element_model, beam_file=beam_file,
                   centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,
-                  double=double, field=field, spw=spw, memory_limit=memory_limit,
+                  double=double, double_column=double_column, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,
                   workers=workers, progress=sys.stderr.isatty() if progress is None else progress)
     for result in results:

@@ -138,8 +138,9 @@ def _tile_shape(cell_shape: tuple[int, ...], target_bytes: int = 1 << 20) -> lis
     return [int(ncorr), int(nchan), int(max(1, target_bytes // max(per_row, 1)))]
 
 
-def check_data_column(table, name: str, like: str = "DATA") -> bool:
-    """Refuse ``name`` as a target shaped like ``like``; True if it exists already.
+def check_data_column(table, name: str, like: str = "DATA", double: bool = False) -> bool:
+    """Refuse ``name`` as a target shaped like ``like`` (with ``double``, as a complex128
+    target); True if it exists already.
 
     Parameters
     ----------
@@ -149,12 +150,15 @@ def check_data_column(table, name: str, like: str = "DATA") -> bool:
         Target column.
     like : str
         Template column (DATA).
+    double : bool
+        The target must hold complex128 values (casacore DComplex).
 
     Raises
     ------
     InputError
         If ``like`` is missing, ``name`` exists but is not a complex array column of the
-        same cell shape, or a new column would not fit on the disk.
+        same cell shape (or, with ``double``, is a complex64 column), or a new column would
+        not fit on the disk.
     """
     cols = table.colnames()
     if like not in cols:
@@ -168,13 +172,17 @@ def check_data_column(table, name: str, like: str = "DATA") -> bool:
                 and table.getcolshapestring(name, 0, 1) != table.getcolshapestring(like, 0, 1)):
             raise InputError(f"column {name} exists with another shape than {like}; "
                              "choose another --column")
+        if double and have.get("valueType") != "dcomplex":
+            raise InputError(f"column {name} exists as complex64, which would round "
+                             "--double-column's values; choose another --column, or remove "
+                             f"it first (TaQL: ALTER TABLE <ms> DROP COLUMN {name})")
         return True
-    cell_bytes = 8 * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
+    cell_bytes = (16 if double else 8) * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
     check_free_space(table.name(), table.nrows() * cell_bytes + 1.1 * 2**20, f"column {name}")
     return False
 
 
-def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
+def ensure_data_column(table, name: str, like: str = "DATA", double: bool = False) -> bool:
     """Create column ``name`` shaped like ``like`` (tiled) if missing; True if created.
 
     Parameters
@@ -185,6 +193,8 @@ def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
         Column to create (or check).
     like : str
         Template column (DATA).
+    double : bool
+        Create it as complex128 (casacore DComplex) instead of with ``like``'s type.
 
     Raises
     ------
@@ -193,7 +203,7 @@ def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
     """
     from casacore.tables import makecoldesc
 
-    if check_data_column(table, name, like):
+    if check_data_column(table, name, like, double):
         return False
     desc = table.getcoldesc(like)
     dm = table.getdminfo(like)
@@ -215,9 +225,12 @@ def ensure_data_column(table, name: str, like: str = "DATA") -> bool:
     newdesc.pop("keywords", None)
     newdesc["dataManagerType"] = dm_type
     newdesc["dataManagerGroup"] = group
+    if double:
+        newdesc["valueType"] = "dcomplex"
     newdesc["comment"] = "visibilities predicted by msleak (see keyword MSLEAK_PREDICT)"
     table.addcols(makecoldesc(name, newdesc), {"TYPE": dm_type, "NAME": group, "SPEC": spec})
-    log.info("created column %s (%s, like %s)", name, dm_type, like)
+    log.info("created column %s (%s, %s like %s)", name, dm_type,
+             "complex128" if double else "value type", like)
     return True
 
 

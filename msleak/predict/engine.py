@@ -46,6 +46,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             diameter: float | None = None, element_model: str | None = None,
             beam_file: str | os.PathLike | None = None, centre_correction: bool = True,
             interpolate_frequency: bool = False, double: bool = False,
+            double_column: bool = False,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
@@ -82,6 +83,11 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         Interpolate a tabulated sky linearly to the MS channels instead of requiring a match.
     double : bool
         complex128 arithmetic (default complex64; phases are always float64).
+    double_column : bool
+        Create the columns as complex128 (casacore DComplex), so that they keep the
+        complex128 values (implies ``double``); an existing column must be complex128
+        already. Only for columns that msleak grid reads: DP3, WSClean and CASA expect
+        complex64 visibility columns (docs/predict.md, "Output").
     field, spw : id or name, or a sequence of them, optional
         FIELD ids or names, SPECTRAL_WINDOW ids; default all present.
     memory_limit : str or float
@@ -111,11 +117,12 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     in_memory = targets[0].column is None
     options = beam_options(beam, diameter=diameter, element_model=element_model,
                            beam_file=beam_file)
-    _check_options(paths, in_memory)
-    dtype = np.dtype(np.complex128 if double else np.complex64)
+    _check_options(paths, in_memory, double_column)
+    dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
     plans = [make_plan(p, targets, beam=beam, centre_correction=centre_correction,
                        interpolate_frequency=interpolate_frequency, dtype=dtype,
-                       field_sel=field, spw_sel=spw, beam_options=options) for p in paths]
+                       field_sel=field, spw_sel=spw, beam_options=options,
+                       double_column=double_column) for p in paths]
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -130,12 +137,15 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     return results[0] if single_ms and one_sky else results
 
 
-def _check_options(paths: list[Path], in_memory: bool) -> None:
+def _check_options(paths: list[Path], in_memory: bool, double_column: bool) -> None:
     """Refuse options that do not go together; repair the MSs a killed run left (only
     when they are written)."""
     if in_memory and len(paths) > 1:
         raise InputError("column=None returns the visibilities of one Measurement Set; "
                          "give one MS, or a column to write")
+    if in_memory and double_column:
+        raise InputError("double_column=True sets the type of the columns written; with "
+                         "column=None use double=True (complex128 visibilities)")
     if not in_memory:
         for p in paths:
             colio.check_writable(p)

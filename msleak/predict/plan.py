@@ -64,7 +64,6 @@ class PredictResult:
     rows_per_baseline: int = 0
 
 
-
 @dataclass(frozen=True)
 class Target:
     """One sky of a run and the column it is predicted into (None: returned in memory)."""
@@ -108,6 +107,8 @@ class Plan:
     table: object = None
     n_slots: int = 0
     rows_per_baseline: int = 0
+    #: new columns are created complex128 (casacore DComplex)
+    double_column: bool = False
 
 
 def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
@@ -224,11 +225,13 @@ def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
 
 
 def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
-              dtype, field_sel, spw_sel, beam_options: dict) -> Plan:
-    """Read the metadata of ``ms``, select its groups and prepare the skies (no writes)."""
+              dtype, field_sel, spw_sel, beam_options: dict, double_column: bool = False
+              ) -> Plan:
+    """Read the metadata of ``ms``, select its groups and prepare the skies (no writes);
+    ``double_column``: the columns are, or are created, complex128."""
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
-    _check_new_columns(ms, [t.column for t in targets if t.column is not None])
+    _check_new_columns(ms, [t.column for t in targets if t.column is not None], double_column)
     groups, total_rows = _select_groups(ms, fields_meta, spw_meta, ddesc, field_sel, spw_sel)
     feeds = {d: correlation_layout(corr_types[ddesc[d][1]]) for _, d in groups}
     for d in sorted({d for _, d in groups if not feeds[d].full}):
@@ -256,7 +259,8 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                 settings_json=[json.dumps(s, sort_keys=True) for s in settings],
                 beam_token=token, beam_options=options, timings=timings,
                 results=[PredictResult(ms=ms, column=t.column, rows_written=0, groups=groups,
-                                       timings=timings) for t in targets])
+                                       timings=timings) for t in targets],
+                double_column=double_column)
 
 
 def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool) -> SkySet:
@@ -274,14 +278,14 @@ def _sky_key(target: Target) -> tuple:
     return (target.sky if isinstance(target.sky, Path) else id(target.sky), target.fov_deg)
 
 
-def _check_new_columns(ms: Path, columns: list[str]) -> None:
+def _check_new_columns(ms: Path, columns: list[str], double: bool) -> None:
     """Refuse target columns of the wrong kind, and new columns that fit on the disk one by
     one but not together."""
     with open_table(ms) as table:
-        new = [c for c in columns if not colio.check_data_column(table, c)]
+        new = [c for c in columns if not colio.check_data_column(table, c, double=double)]
         if len(new) < 2:
             return
-        cell_bytes = 8 * int(np.prod(table.getcell("DATA", 0).shape)) if table.nrows() else 0
+        cell_bytes = (16 if double else 8) * int(np.prod(table.getcell("DATA", 0).shape)) if table.nrows() else 0
         colio.check_free_space(table.name(), len(new) * (table.nrows() * cell_bytes
                                                          + 1.1 * 2**20),
                                f"columns {', '.join(new)}")

@@ -43,7 +43,8 @@ def create_columns(plans: list, rollbacks: list) -> None:
                 rollback = colio.Rollback(table, target.column, plan.total_rows)
                 rollbacks.append(rollback)
                 plan.rollbacks.append(rollback)
-                rollback.created = colio.ensure_data_column(table, target.column)
+                rollback.created = colio.ensure_data_column(table, target.column,
+                                                            double=plan.double_column)
                 res.created_column = rollback.created
 
 

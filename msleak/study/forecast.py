@@ -158,7 +158,7 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
                    "--freq-min", setup.freq_min(cfg.nchan), "--nchan", cfg.nchan,
                    "--chan-width", _CHAN_WIDTH,
                    "--stations", ",".join(names), "--overwrite"], outputs=[ms])]
-    predict = ["predict", ms, "--beam", setup.beam, *(["--double"] if cfg.double else [])]
+    predict = ["predict", ms, "--beam", setup.beam, *(["--double", "--double-column"] if cfg.double else [])]
     cell, uv_range = setup.uv_grid(cfg.nchan)
     grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
             f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]
