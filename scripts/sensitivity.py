@@ -9,11 +9,13 @@ each finished configuration (keyed by factor, label and field).
 
 Two variants need msleak internals and run the predict command in a Python process that
 patches the beam model first (nothing in msleak changes):
-  frozen beam   BeamModel.jones gets every time replaced by one instant (the middle or
-                the first time slot of the MS); UVW, phases and station coordinates keep
-                the real track.
+  frozen beam   BeamModel.jones and jones_factors get every time replaced by one
+                instant (the middle or the first time slot of the MS); UVW, phases and
+                station coordinates keep the real track.
   element only  LofarFastBeam._jones returns the Hamaker element Jones of each station's
-                field (no tile or station array factor).
+                field (no tile or station array factor), and _jones_factors None, so
+                that predict asks for _jones.
+A patched run fails if msleak never called the patched code.
 The k-space regions (EoR window, wedge) are selected in this script from the PS product's
 voxels with msleak.leakage's own functions (see region_stats).
 """
@@ -43,18 +45,24 @@ FACTOR_ORDER = ["baseline", "synthesis time", "beam", "integration", "stations",
 PATCH_FROZEN = """
 import sys, numpy as np
 from msleak.beam import base
-_orig = base.BeamModel.jones
 T0 = float(sys.argv.pop(1))
-def jones(self, time_mjd_s, *args, **kwargs):
-    t = np.atleast_1d(np.asarray(time_mjd_s, dtype=float))
-    return _orig(self, np.full_like(t, T0), *args, **kwargs)
-base.BeamModel.jones = jones
+CALLS = []
+def frozen(method):
+    def at_t0(self, time_mjd_s, *args, **kwargs):
+        CALLS.append(1)
+        t = np.atleast_1d(np.asarray(time_mjd_s, dtype=float))
+        return method(self, np.full_like(t, T0), *args, **kwargs)
+    return at_t0
+base.BeamModel.jones = frozen(base.BeamModel.jones)
+base.BeamModel.jones_factors = frozen(base.BeamModel.jones_factors)
 """
 
 PATCH_ELEMENT = """
 import sys, numpy as np
 from msleak.beam import lofar_fast as lf
+CALLS = []
 def _jones(self, time, freq, ra, dec, stations, dtype):
+    CALLS.append(1)
     out = np.empty((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)
     first = [int(np.flatnonzero(self._field_station == s)[0]) for s in stations]
     for it, t in enumerate(time):
@@ -69,11 +77,18 @@ def _jones(self, time, freq, ra, dec, stations, dtype):
             out[i, it] = cache[g]
     return out
 lf.LofarFastBeam._jones = _jones
+lf.LofarFastBeam._jones_factors = lambda self, *args: None   # predict then calls _jones
 """
 
+# runs the command after a patch; fails if msleak never called the patched code (its beam
+# API changed), so a variant can never silently equal the unpatched run
 RUN_CLI = """
 from msleak.cli import cli
-cli(args=sys.argv[1:], prog_name="msleak")
+rc = cli.main(args=sys.argv[1:], prog_name="msleak", standalone_mode=False)
+if rc:
+    sys.exit(rc)
+if not CALLS:
+    sys.exit("scripts/sensitivity.py: msleak never called the patched beam; update the patch")
 """
 
 
