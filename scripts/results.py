@@ -39,8 +39,10 @@ def main(outdir: str, md_path: str, fig_dir: str) -> None:
             "[sensitivity.md](sensitivity.md) (`scripts/sensitivity`).", ""]
     if wall:
         head.append(f"Whole run: **{wall.group(1)}** wall clock, peak memory "
-                    f"**{int(rss.group(1)) / 2**20:.2f} GiB** (`/usr/bin/time -v`; the "
-                    "stages run one after another in one process).")
+                    f"**{int(rss.group(1)) / 2**20:.2f} GiB** in the largest process "
+                    "(`/usr/bin/time -v`; `msleak paper` runs two steps at a time in "
+                    "worker processes, so the stage totals below add up to more than the "
+                    "wall clock).")
         head.append("")
     head += ["| stage | total seconds (all fields and fields of view) |", "|---|---|"]
     head += [f"| {k} | {v:.1f} |" for k, v in stage_totals.items()]

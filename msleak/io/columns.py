@@ -175,7 +175,9 @@ def check_data_column(table, name: str, like: str = "DATA", double: bool = False
         if double and have.get("valueType") != "dcomplex":
             raise InputError(f"column {name} exists as complex64, which would round "
                              "--double-column's values; choose another --column, or remove "
-                             f"it first (TaQL: ALTER TABLE <ms> DROP COLUMN {name})")
+                             f"it first (TaQL: ALTER TABLE <ms> DROP COLUMN {name}); in a "
+                             "msleak paper or forecast OUTDIR of an earlier msleak, rerun "
+                             "with --overwrite")
         return True
     cell_bytes = (16 if double else 8) * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
     check_free_space(table.name(), table.nrows() * cell_bytes + 1.1 * 2**20, f"column {name}")
@@ -229,8 +231,8 @@ def ensure_data_column(table, name: str, like: str = "DATA", double: bool = Fals
         newdesc["valueType"] = "dcomplex"
     newdesc["comment"] = "visibilities predicted by msleak (see keyword MSLEAK_PREDICT)"
     table.addcols(makecoldesc(name, newdesc), {"TYPE": dm_type, "NAME": group, "SPEC": spec})
-    log.info("created column %s (%s, %s like %s)", name, dm_type,
-             "complex128" if double else "value type", like)
+    log.info("created column %s (%s, %slike %s)", name, dm_type,
+             "complex128, shaped " if double else "", like)
     return True
 
 
