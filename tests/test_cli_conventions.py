@@ -15,8 +15,8 @@ CREATE = {"simulate": "out", "sky": "out", "paper": "outdir", "forecast": "outdi
 #: commands that turn an input into a product named by -o/--output
 TRANSFORM = {"beam", "grid", "transform", "ps", "leakage"}
 #: one-way switches that change what is computed (not --x/--no-x pairs)
-ONE_WAY = {"quick", "double", "restart", "overwrite", "overwrite_data", "invariant",
-           "interpolate_frequency", "log_bins", "little_h"}
+ONE_WAY = {"quick", "double", "double_column", "restart", "overwrite", "overwrite_data",
+           "invariant", "interpolate_frequency", "log_bins", "little_h"}
 #: metavars of single numbers: a unit, or N (count) / X (dimensionless) / FRACTION
 UNIT_METAVARS = {"HZ", "DEG", "SEC", "HOURS", "M", "LAMBDA", "SR", "PC", "UG", "CM-3", "K",
                  "KM/S/MPC", "MPC-1", "N", "X", "FRACTION", "SIZE"}

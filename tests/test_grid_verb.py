@@ -155,6 +155,12 @@ def test_verb_outputs_pair_with_columns(random_ms, tmp_path):
     (dict(gridder="fft"), "unknown gridder 'fft': use 'wgrid' or 'cell'"),
     (dict(split="odd"), "unknown split 'odd': use even-odd or first-second"),
     (dict(chunk_rows=0), "--chunk-rows must be positive"),
+    (dict(epsilon=float("nan")), "--epsilon must be a relative accuracy between 0 and 1, "
+                                 "got nan"),
+    (dict(epsilon=0.0), "--epsilon must be a relative accuracy between 0 and 1, got 0"),
+    (dict(epsilon=1.0), "--epsilon must be a relative accuracy between 0 and 1, got 1"),
+    (dict(epsilon=1e-15), "--epsilon 1e-15: ducc0's gridder has no kernel this accurate; "
+                          "give 1e-13 or more"),
 ])
 def test_verb_option_errors(random_ms, kwargs, message):
     """Each refused before any MS row is read (one line, the CLI's wording)."""

@@ -179,7 +179,8 @@ def check_data_column(table, name: str, like: str = "DATA", double: bool = False
                              "msleak paper or forecast OUTDIR of an earlier msleak, rerun "
                              "with --overwrite")
         return True
-    cell_bytes = (16 if double else 8) * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
+    itemsize = 16 if double else 8
+    cell_bytes = itemsize * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0
     check_free_space(table.name(), table.nrows() * cell_bytes + 1.1 * 2**20, f"column {name}")
     return False
 

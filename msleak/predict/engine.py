@@ -86,8 +86,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     double_column : bool
         Create the columns as complex128 (casacore DComplex), so that they keep the
         complex128 values (implies ``double``); an existing column must be complex128
-        already. Only for columns that msleak grid reads: DP3, WSClean and CASA expect
-        complex64 visibility columns (docs/predict.md, "Output").
+        already. Only for columns that msleak grid reads: DP3 and WSClean read visibility
+        columns as complex64 (docs/predict.md, "Output").
     field, spw : id or name, or a sequence of them, optional
         FIELD ids or names, SPECTRAL_WINDOW ids; default all present.
     memory_limit : str or float

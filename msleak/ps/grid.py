@@ -181,6 +181,23 @@ class _Plan:
     label: str
 
 
+def _check_epsilon(epsilon: float) -> None:
+    """Refuse a wgrid accuracy outside (0, 1) or finer than ducc0 has a kernel for (asked
+    of ducc0 itself, with one sample: its range depends on its version)."""
+    from ducc0.wgridder import vis2dirty
+
+    if not (math.isfinite(epsilon) and 0 < epsilon < 1):
+        raise InputError(f"--epsilon must be a relative accuracy between 0 and 1, got "
+                         f"{epsilon:g} (default 1e-6)")
+    try:
+        vis2dirty(uvw=np.zeros((1, 3)), freq=np.array([1e8]), vis=np.ones((1, 1), np.complex128),
+                  npix_x=16, npix_y=16, pixsize_x=1e-3, pixsize_y=1e-3, epsilon=epsilon,
+                  do_wgridding=True)
+    except RuntimeError as err:
+        raise InputError(f"--epsilon {epsilon:g}: ducc0's gridder has no kernel this accurate; "
+                         "give 1e-13 or more (default 1e-6)") from err
+
+
 def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple,
           gridder: str, split, epsilon: float, threads: int, chunk_rows) -> _Plan:
     """Check every MS and column (before anything is gridded) and size the uv grid."""
@@ -192,6 +209,8 @@ def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple
         raise InputError(f"unknown split {split!r}: use even-odd or first-second")
     if chunk_rows is not None and chunk_rows <= 0:
         raise InputError("--chunk-rows must be positive")
+    if gridder == "wgrid":
+        _check_epsilon(epsilon)
     if len({Path(p).resolve() for p in paths}) < len(paths):
         raise InputError("a Measurement Set is given twice")
     inputs = [check_input(p, columns, field, spw) for p in paths]
