@@ -40,9 +40,9 @@ def main(outdir: str, md_path: str, fig_dir: str) -> None:
     if wall:
         head.append(f"Whole run: **{wall.group(1)}** wall clock, peak memory "
                     f"**{int(rss.group(1)) / 2**20:.2f} GiB** in the largest process "
-                    "(`/usr/bin/time -v`; `msleak paper` runs two steps at a time in "
-                    "worker processes, so the stage totals below add up to more than the "
-                    "wall clock).")
+                    "(`/usr/bin/time -v`; with `--workers 2`, its default on two or more "
+                    "cores, `msleak paper` runs two steps at a time in worker processes, so "
+                    "the stage totals below can add up to more than the wall clock).")
         head.append("")
     head += ["| stage | total seconds (all fields and fields of view) |", "|---|---|"]
     head += [f"| {k} | {v:.1f} |" for k, v in stage_totals.items()]

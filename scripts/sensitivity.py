@@ -145,7 +145,10 @@ class Runner:
         else:  # msleak's click command in this process (saves the start-up per step)
             from msleak.cli import cli
 
-            cli.main(args=["-q", *args], prog_name="msleak", standalone_mode=False)
+            rc = cli.main(args=["-q", *args], prog_name="msleak", standalone_mode=False)
+            if rc:  # msleak reports its error and returns the status; stop, mark nothing
+                raise SystemExit(f"scripts/sensitivity.py: msleak {args[0]} failed (exit {rc}); "
+                                 "rerun the script to resume")
         with open(self.log, "a") as fh:
             fh.write(f"{time.perf_counter() - tick:.1f}\t{' '.join(['msleak', *args])}\n")
 

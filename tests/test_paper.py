@@ -26,8 +26,7 @@ TINY = ["--field", "3c196", "--stations", "CS00[1-4]HBA*", "--duration", "1",
         "--interval", "600", "--nchan", "16"]
 FOVS = ("15deg", "9deg", "4deg")
 #: products of the same study run two ways, each in fresh processes (bit-identical at this
-#: size when measured; the room is for the complex64 rounding of MODEL columns,
-#: docs/telescopes.md)
+#: size when measured; the room is a margin for sums whose order the threads set)
 RTOL_RUNS = 1e-6
 
 
@@ -94,9 +93,8 @@ def test_rerun_resumes_and_overwrite_recomputes(study):
 @pytest.fixture(scope="module")
 def study_seeds(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper_seeds") / "study"
-    # a process of its own, as the one-seed study's steps are: casacore's measures keep
-    # caches, so conversions in a process that ran other tests first differ in the last
-    # bits (MODEL columns at the complex64 rounding level)
+    # a process of its own, as the one-seed study's steps are, so that nothing the test
+    # process ran before can reach its numbers
     result = subprocess.run([sys.executable, "-m", "msleak", "-q", "paper", str(out), *TINY,
                              "--seeds", "3", "--workers", "1"], capture_output=True, text=True,
                             env={**os.environ, "MPLBACKEND": "Agg"}, timeout=900)

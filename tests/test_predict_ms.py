@@ -241,7 +241,8 @@ def test_double_column_stores_the_complex128_values_and_refuses_a_complex64_one(
     """--double-column creates a complex128 (DComplex) column holding bit for bit what
     predict returns in complex128; DATA keeps its type; the same run into a complex64
     column differs only by complex64 rounding; --double-column refuses an existing
-    complex64 column in one line and writes an existing complex128 one."""
+    complex64 column in one line (and DATA, which keeps its type) and rewrites an
+    existing complex128 one."""
     ra0, dec0 = _phase_centre(small_lofar_ms)
     sky = _write_sky(tmp_path / "c.skymodel", [(ra0 + 0.03, dec0 - 0.02, 1.0, 0.7, -0.4, 0.1),
                                                (ra0 - 0.05, dec0 + 0.01, 0.0, 0.3, 0.9, 0.0)])
@@ -273,6 +274,9 @@ def test_double_column_stores_the_complex128_values_and_refuses_a_complex64_one(
     np.testing.assert_array_equal(_col(small_lofar_ms, "MODEL_D"), stored)
     with pytest.raises(InputError, match="double_column=True sets the type"):
         run_predict(small_lofar_ms, sky, column=None, beam="dipole", double_column=True)
+    res = _invoke("predict", small_lofar_ms, "--sky", sky, "--beam", "dipole", "--column",
+                  "DATA", "--overwrite-data", "--double-column")
+    assert res.exit_code == 2 and "DATA keeps its type: use --double" in res.output
 
 
 def test_interrupted_run_is_marked_and_resumed(small_lofar_ms, tmp_path, monkeypatch):

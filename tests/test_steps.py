@@ -190,7 +190,8 @@ def test_an_interrupt_stops_the_children_and_keeps_what_finished(tmp_path):
 
 def test_a_ctrl_c_handed_to_a_step_thread_stops_the_running_steps_at_once(tmp_path):
     """The kernel gives a process's SIGINT to any of its threads. One given to a thread
-    that runs a step must stop the running steps within a second, not when they end."""
+    that runs a step must stop the running steps at once (within 5 s here, against the
+    30 s the step would last), not when they end."""
     import signal
     import threading
     import time

@@ -54,7 +54,7 @@ def _split(_ctx, _param, value):
 @click.option("--double-column", is_flag=True,
               help="Create the columns as complex128 (casacore DComplex) to keep --double's "
                    "values (implies --double). For columns msleak grid reads: DP3 and "
-                   "WSClean read visibility columns as complex64.")
+                   "WSClean cannot open a complex128 column.")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
               help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
                    "computed at the same time (per worker process with a scheduler address).")

@@ -86,8 +86,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     double_column : bool
         Create the columns as complex128 (casacore DComplex), so that they keep the
         complex128 values (implies ``double``); an existing column must be complex128
-        already. Only for columns that msleak grid reads: DP3 and WSClean read visibility
-        columns as complex64 (docs/predict.md, "Output").
+        already; not with DATA. Only for columns that msleak grid reads: DP3 and WSClean
+        cannot open a complex128 column (docs/predict.md, "Output").
     field, spw : id or name, or a sequence of them, optional
         FIELD ids or names, SPECTRAL_WINDOW ids; default all present.
     memory_limit : str or float
@@ -117,7 +117,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     in_memory = targets[0].column is None
     options = beam_options(beam, diameter=diameter, element_model=element_model,
                            beam_file=beam_file)
-    _check_options(paths, in_memory, double_column)
+    _check_options(paths, targets, double_column)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
     plans = [make_plan(p, targets, beam=beam, centre_correction=centre_correction,
                        interpolate_frequency=interpolate_frequency, dtype=dtype,
@@ -137,15 +137,19 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     return results[0] if single_ms and one_sky else results
 
 
-def _check_options(paths: list[Path], in_memory: bool, double_column: bool) -> None:
+def _check_options(paths: list[Path], targets: list, double_column: bool) -> None:
     """Refuse options that do not go together; repair the MSs a killed run left (only
     when they are written)."""
+    in_memory = targets[0].column is None
     if in_memory and len(paths) > 1:
         raise InputError("column=None returns the visibilities of one Measurement Set; "
                          "give one MS, or a column to write")
     if in_memory and double_column:
         raise InputError("double_column=True sets the type of the columns written; with "
                          "column=None use double=True (complex128 visibilities)")
+    if double_column and any(t.column == "DATA" for t in targets):
+        raise InputError("--double-column makes new complex128 columns; DATA keeps its type: "
+                         "use --double to write DATA")
     if not in_memory:
         for p in paths:
             colio.check_writable(p)

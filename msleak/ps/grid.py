@@ -194,8 +194,9 @@ def _check_epsilon(epsilon: float) -> None:
                   npix_x=16, npix_y=16, pixsize_x=1e-3, pixsize_y=1e-3, epsilon=epsilon,
                   do_wgridding=True)
     except RuntimeError as err:
-        raise InputError(f"--epsilon {epsilon:g}: ducc0's gridder has no kernel this accurate; "
-                         "give 1e-13 or more (default 1e-6)") from err
+        raise InputError(f"--epsilon {epsilon:g}: this ducc0's gridder has no kernel this "
+                         "accurate (its limit is near 2e-14); give a larger value (default "
+                         "1e-6)") from err
 
 
 def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple,

@@ -248,6 +248,8 @@ class ProcessInvoker:
         worker = self._idle.get()
         died = False
         try:
+            if self._closed:                       # no new worker once stopping
+                raise MsleakError(f"`msleak {self.command}` is stopping")
             if worker is None or not worker[0].is_alive():
                 worker = self._start()
             proc, conn = worker
@@ -395,9 +397,9 @@ def _worker_main(conn, run, parent: int) -> None:
         args, prefix = task
         sys.stdout, sys.stderr = _Prefixed(out, prefix), _Prefixed(err, prefix)
         try:
+            state["running"] = True                # from here a SIGINT interrupts the step
             if state["interrupted"]:
                 raise KeyboardInterrupt
-            state["running"] = True
             rc = run(args)
         except KeyboardInterrupt:
             rc = 130
