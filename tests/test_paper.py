@@ -181,7 +181,8 @@ def test_predicts_in_double_unless_no_double(tmp_path):
     assert [[x for x in a if x not in ("--double", "--double-column")]
             for a in both[True]] == both[False]
     result = CliRunner().invoke(cli, ["paper", "--help"])
-    assert "--double / --no-double" in result.output and "[default: double]" in result.output
+    text = " ".join(result.output.split())           # as click wraps it for the terminal
+    assert "--double / --no-double" in text and "[default: double]" in text
 
 
 def test_bad_observed_option(tmp_path):
