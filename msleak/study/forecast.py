@@ -22,7 +22,7 @@ from msleak.errors import InputError
 from msleak.io.products import open_product
 from msleak.leakage.fraction import window_leakage
 from msleak.plot.forecast import plot_forecast
-from msleak.study.steps import Step, StepRunner
+from msleak.study.steps import Step, StepRunner, predict_precision
 from msleak.telescope.hera_mwa import HERA_DISH_DIAMETER_M, MWA_TILE_SIZE_M
 from msleak.telescope.layouts import HBA_FIELD_DIAMETER
 from msleak.telescope.simulate import TELESCOPES, telescope_layout
@@ -158,7 +158,7 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
                    "--freq-min", setup.freq_min(cfg.nchan), "--nchan", cfg.nchan,
                    "--chan-width", _CHAN_WIDTH,
                    "--stations", ",".join(names), "--overwrite"], outputs=[ms])]
-    predict = ["predict", ms, "--beam", setup.beam, *(["--double", "--double-column"] if cfg.double else [])]
+    predict = ["predict", ms, "--beam", setup.beam, *predict_precision(cfg.double)]
     cell, uv_range = setup.uv_grid(cfg.nchan)
     grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
             f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]

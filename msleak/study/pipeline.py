@@ -9,7 +9,7 @@ from pathlib import Path
 
 from msleak.study.config import FIELDS_OF_VIEW, StudyConfig
 from msleak.study.report import write_report
-from msleak.study.steps import Step, StepRunner
+from msleak.study.steps import Step, StepRunner, predict_precision
 
 __all__ = ["study_steps", "run_study"]
 
@@ -48,7 +48,7 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
     column = {(seed, label): f"MODEL_{label.upper()}{sfx.upper()}" for seed, label, sfx in runs}
     steps = [Step(f"simulate-{fld}", ["simulate", ms, "--field", fld, *cfg.simulate_args,
                                       "--overwrite"], outputs=[ms])]
-    predict = ["predict", ms, "--beam", cfg.beam, *(["--double", "--double-column"] if cfg.double else [])]
+    predict = ["predict", ms, "--beam", cfg.beam, *predict_precision(cfg.double)]
     grid = ["grid", ms, "--overwrite"]
     for seed, label, sfx in runs:
         predict += ["--sky", crops[seed, label], "--column", column[seed, label]]

@@ -31,7 +31,8 @@ from typing import Sequence
 from msleak import __version__ as MSLEAK_VERSION
 from msleak.errors import MsleakError
 
-__all__ = ["Step", "StepRunner", "ProcessInvoker", "step_failed", "dependencies"]
+__all__ = ["Step", "StepRunner", "ProcessInvoker", "step_failed", "dependencies",
+           "predict_precision"]
 
 log = logging.getLogger(__name__)
 #: how often (s) the thread that runs steps at once looks for a Ctrl-C
@@ -56,6 +57,12 @@ class Step:
     @property
     def command(self) -> str:
         return "msleak " + " ".join(shlex.quote(str(a)) for a in self.args)
+
+
+def predict_precision(double: bool) -> list[str]:
+    """The predict options of a study's ``--double/--no-double``: complex128 arithmetic into
+    complex128 columns, or neither."""
+    return ["--double", "--double-column"] if double else []
 
 
 def step_failed(args: Sequence[str], rc, command: str) -> MsleakError:
