@@ -41,8 +41,9 @@ def dp3_environment(threads: int | None = None) -> dict:
     env = dict(os.environ)
     env["OPENBLAS_NUM_THREADS"] = "1"
     env["EVERYBEAM_DATADIR"] = str(everybeam_datadir())
-    env["AIPSPATH"] = str(casacore_dir)
-    env["CASACORE_DATADIR"] = str(casacore_dir / "data")
+    if "AIPSPATH" not in env:       # msleak's import sets it (msleak.io.casacore_data)
+        env["AIPSPATH"] = str(casacore_dir)
+        env["CASACORE_DATADIR"] = str(casacore_dir / "data")
     if threads:
         env["OMP_NUM_THREADS"] = str(threads)
     return env
