@@ -170,7 +170,7 @@ def test_stats_table_has_the_new_columns(tmp_path):
     assert float(rows[0]["pareto_median_err"]) == pytest.approx(
         float(res["pareto_median_err"].values[0]), rel=1e-5)
     assert int(rows[0]["n_groups"]) == 60            # the 60 cells, all delays together
-    assert "KS D" in write_stats_md(res, tmp_path / "s.md").read_text()
+    assert "KS D" in write_stats_md(res, tmp_path / "stats.md").read_text()
 
 
 # ------------------------------------------------------------------ effective cell counts

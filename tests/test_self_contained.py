@@ -1,15 +1,20 @@
-"""The project stands on its own: no file it ships or documents refers to method or design
-notes outside the repository; the method page is docs/science.md."""
+"""The project stands on its own: every page a shipped or documented file names is in the
+repository (or is a page msleak writes), and every relative path leads to a file in it; the
+method page is docs/science.md."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-OUTSIDE = ("method.md", "design.md", "../shared", "style.md")
+#: Markdown pages msleak writes into its output folders (paper, leakage, forecast).
+WRITTEN_PAGES = {"report.md", "stats.md", "forecast.md"}
+PAGE_NAME = re.compile(r"(?<![\w{}])[\w-]+\.md\b")
+RELATIVE_PATH = re.compile(r"(?:\.\./)+[\w.-]+")
 
 
 def _tracked_files() -> list[Path]:
@@ -22,14 +27,29 @@ def _tracked_files() -> list[Path]:
             and (ROOT / name).is_file()]
 
 
-def test_no_reference_outside_the_repository():
+def test_every_page_named_is_in_the_repository():
+    files = _tracked_files()
+    pages = {path.name for path in files if path.suffix == ".md"}
+    offenders = [f"{path.relative_to(ROOT)}: {name}" for path in files
+                 for name in sorted(set(PAGE_NAME.findall(path.read_text(errors="replace"))))
+                 if name not in pages | WRITTEN_PAGES]
+    assert not offenders, offenders
+
+
+def test_every_relative_path_leads_to_something_in_the_repository():
     offenders = []
     for path in _tracked_files():
-        if path.name == Path(__file__).name:
-            continue
-        text = path.read_text(errors="replace")
-        offenders += [f"{path.relative_to(ROOT)}: {word}" for word in OUTSIDE if word in text]
+        for found in RELATIVE_PATH.findall(path.read_text(errors="replace")):
+            target = (path.parent / found).resolve()
+            if ROOT not in target.parents or not target.exists():
+                offenders.append(f"{path.relative_to(ROOT)}: {found}")
     assert not offenders, offenders
+
+
+def test_the_pages_msleak_writes_are_written_by_msleak():
+    source = "\n".join(p.read_text() for p in (ROOT / "msleak").rglob("*.py"))
+    for name in WRITTEN_PAGES:
+        assert f'"{name}"' in source, name
 
 
 def test_science_page_has_the_numbered_sections_others_cite():
