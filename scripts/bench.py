@@ -57,7 +57,7 @@ def _tree_pss_kib(pid: int) -> int:
     return total
 
 
-def timed(cmd: list, cwd: Path) -> dict:
+def timed(cmd: list, cwd: Path, env: dict | None = None) -> dict:
     """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak resident memory (MiB), CPU
     seconds (user + system, a check on wall times taken while other jobs shared the
     machine), exit code, output. The peak is the larger of the largest single process's
@@ -66,7 +66,7 @@ def timed(cmd: list, cwd: Path) -> dict:
     them all."""
     t0 = time.perf_counter()
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
-        proc = subprocess.Popen(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd,
+        proc = subprocess.Popen(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd, env=env,
                                 stdout=out, stderr=err, text=True)
         tree_kib = 0
         while proc.poll() is None:
@@ -182,6 +182,63 @@ def bench_many_skies(stage, msleak: list, ms: Path, out: Path, results: dict) ->
         results["multisky"][f"predict_{n}_skies"] = r
 
 
+def bench_predict_process(stage, msleak: list, ms: Path, out: Path, results: dict,
+                          hours: float | None) -> None:
+    """One whole ``msleak predict`` process against one whole ``DP3`` predict + applybeam
+    process on the same MS and makesourcedb sky (2500 flat-spectrum Q/U sources over
+    15 deg), each timed from start to exit: interpreter start, imports, set-up, beam,
+    writes. ``hours`` None uses the paper MS, else a fresh NCP MS of that length."""
+    import casacore.tables as pt
+    import numpy as np
+    from bench_predict import grid_skymodel
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from dp3ref import dp3_available, dp3_environment
+
+    work = out / "process"
+    work.mkdir(exist_ok=True)
+    if hours is not None:
+        ms = work / f"ncp_{hours:g}h.ms"
+        subprocess.run([*msleak, "simulate", ms, "--field", "ncp", "--duration", str(hours),
+                        "--overwrite"], check=True, stdout=subprocess.DEVNULL)
+    with pt.table(str(ms / "FIELD"), ack=False) as t:
+        ra0, dec0 = t.getcell("PHASE_DIR", 0).reshape(-1)[:2]
+    with pt.table(str(ms), ack=False) as t:
+        nrow, slots = t.nrows(), len(np.unique(t.getcol("TIME")))
+    sky = work / "sky.skymodel"
+    nsrc = grid_skymodel(sky, 50, 15.0, ra0, dec0)
+    r = {"ms": ms.name, "rows": nrow, "slots": slots, "sources": nsrc}
+    # numba's cache warmed, untimed, on the first slots of the same MS
+    warm = work / "warm.ms"
+    subprocess.run([*msleak, "simulate", warm, "--field", "ncp", "--duration", "0.1",
+                    "--overwrite"], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run([*msleak, "predict", warm, "--sky", sky, "--no-progress", "--restart"],
+                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    shutil.rmtree(warm, ignore_errors=True)
+    r["msleak"] = stage("predict_process_msleak", [*msleak, "predict", ms, "--sky", sky,
+                                                   "--column", "MSLEAK_PROCESS",
+                                                   "--no-progress", "--restart"], "peers")
+    if dp3_available():
+        parset = work / "dp3.parset"
+        parset.write_text("\n".join([
+            f"msin={ms}", "msout=.", "msout.datacolumn=DP3_PROCESS",
+            "steps=[predict,applybeam]", "predict.type=predict", f"predict.sourcedb={sky}",
+            "predict.usebeammodel=true", "predict.beammode=full", "applybeam.type=applybeam",
+            "applybeam.invert=true", "applybeam.beammode=full"]) + "\n")
+        dp3 = [sys.executable, "-c", "import sys, dp3; sys.argv = ['DP3'] + sys.argv[1:]; "
+               "sys.exit(dp3.entrypoint())", parset]
+        r["dp3"] = stage("predict_process_dp3", dp3, "peers", env=dp3_environment())
+        if not (r["msleak"]["exit"] or r["dp3"]["exit"]):
+            r["speedup_wall"] = round(r["dp3"]["wall_s"] / r["msleak"]["wall_s"], 1)
+            r["speedup_cpu"] = round(r["dp3"]["cpu_s"] / r["msleak"]["cpu_s"], 1)
+            with pt.table(str(ms), ack=False) as t:
+                a, b = t.getcol("MSLEAK_PROCESS"), t.getcol("DP3_PROCESS")
+            r["stokes_i_rel_rms"] = float(np.sqrt(np.mean(np.abs(
+                (a - b)[..., 0] + (a - b)[..., 3]) ** 2) / np.mean(np.abs(b[..., 0] + b[..., 3])
+                                                                    ** 2)))
+    results["peers"]["predict_process"] = r
+
+
 def bench_study(stage, msleak: list, out: Path, results: dict, quick: bool) -> None:
     """The whole study with one and with five sky realisations (and one with --workers 1),
     and DP3's predict time."""
@@ -206,7 +263,10 @@ def main() -> int:
     ap.add_argument("--only", default="", help="comma-separated stages or groups to run "
                     "(simulate, sky, beam, predict, grid, transform, ps, leakage, peers, "
                     "beam_peer, predict_peer, ps_peer, schedulers, predict_schedulers, "
-                    "grid_schedulers, scaling, multisky, study)")
+                    "grid_schedulers, scaling, predict_process, multisky, study)")
+    ap.add_argument("--process-hours", type=float, default=None,
+                    help="predict_process on a fresh NCP MS of this many hours instead of "
+                         "the paper MS (DP3 takes about 5 s per slot there: 35 min for 13 h)")
     ap.add_argument("--outdir", default=str(ROOT / "bench-output"))
     ap.add_argument("--doc", default=str(ROOT / "docs" / "benchmarks.md"),
                     help="Markdown report ('' for none)")
@@ -239,9 +299,9 @@ def main() -> int:
     def want(*names):
         return not only or bool(only & set(names))
 
-    def stage(name, cmd, group=None):
+    def stage(name, cmd, group=None, env=None):
         print(f"bench: {name} ...", file=sys.stderr, flush=True)
-        r = timed(cmd, out)
+        r = timed(cmd, out, env)
         (stages if group is None else results[group])[name] = r
         print(f"bench: {name}: {r['wall_s']:.1f} s, peak {r['peak_rss_mib']} MiB"
               + (f", FAILED exit {r['exit']}: {r['stderr'][-300:]}" if r["exit"] else ""),
@@ -319,6 +379,9 @@ def main() -> int:
         r = stage("scaling", [sys.executable, SCRIPTS / "bench_scaling.py", "--outdir", out,
                               *quick], "peers")
         r["result"] = last_json(r["stdout"])
+    if want("peers", "predict_process"):
+        bench_predict_process(stage, msleak, ms, out, results,
+                              0.2 if args.quick else args.process_hours)
     if want("multisky") and not args.quick:
         bench_many_skies(stage, msleak, ms, out, results)
     if want("study"):

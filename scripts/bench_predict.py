@@ -59,7 +59,10 @@ print(json.dumps({"wall": time.perf_counter() - t0, "code": code,
 """
 
 
-def _sky(path: Path, n_side: int, fov_deg: float, ra0: float, dec0: float, seed: int = 1):
+def grid_skymodel(path: Path, n_side: int, fov_deg: float, ra0: float, dec0: float,
+                  seed: int = 1) -> int:
+    """A makesourcedb file of n_side^2 point sources with random Q, U (Jy) on a square grid
+    of ``fov_deg`` about (ra0, dec0) (rad), read alike by msleak and DP3; returns the count."""
     rng = np.random.default_rng(seed)
     pix = fov_deg / n_side
     lines = ["format = Name, Type, Ra, Dec, I, Q, U, V, ReferenceFrequency='150e6', "
@@ -152,7 +155,7 @@ def main(argv=None) -> int:
     with pt.table(str(ms / "FIELD"), ack=False) as t:
         ra0, dec0 = t.getcell("PHASE_DIR", 0).reshape(-1)[:2]
     sky = work / "sky.skymodel"
-    nsrc = _sky(sky, args.nside, args.fov, ra0, dec0)
+    nsrc = grid_skymodel(sky, args.nside, args.fov, ra0, dec0)
     out: dict = {"stations": nant, "sources": nsrc, "channels": args.nchan, "slots": args.slots,
                  "rows": nrow, "beam": args.beam, "centre_correction": True,
                  "cores": os.cpu_count()}

@@ -59,6 +59,23 @@ def _predict_peer(r: dict) -> list:
     return lines
 
 
+def _process_rows(r: dict) -> list:
+    lines = [f"One whole process each (start to exit: interpreter, imports, set-up, beam, "
+             f"writes) on the same MS ({r['ms']}: {r['slots']} slots, {r['rows']} rows) and "
+             f"makesourcedb sky ({r['sources']} sources), numba's cache warm.", "",
+             "| process | wall (s) | CPU (s) | peak memory (MiB) |", "|---|---|---|---|"]
+    for key, name in (("msleak", "msleak predict"), ("dp3", "DP3 predict + applybeam")):
+        if key in r:
+            p = r[key]
+            lines.append(f"| {name} | {p['wall_s']:.1f} | {_f(p['cpu_s'])} | "
+                         f"{_f(p['peak_rss_mib'], '.0f')} |")
+    if "speedup_wall" in r:
+        lines += ["", f"**msleak / DP3, whole process: {r['speedup_wall']:.1f}x wall, "
+                      f"{r['speedup_cpu']:.1f}x CPU.** Stokes I relative rms difference "
+                      f"{r['stokes_i_rel_rms']:.1e}."]
+    return lines
+
+
 def _beam_peer(r: dict) -> list:
     lines = [f"One time slot, {r['stations']} stations x {r['channels']} channels, "
              f"{r['threads']} threads; EveryBeam direct timed on "
@@ -208,6 +225,9 @@ def write_markdown(results: dict, path: Path) -> None:
             lines.append(f"FAILED (exit {r['exit']}): {r.get('stderr', '')[-300:]}")
         lines.append(f"\nWhole script: {r['wall_s']:.0f} s, peak {_f(r['peak_rss_mib'], '.0f')} "
                      f"MiB (`{r['command']}`).")
+    if peers.get("predict_process"):
+        lines += ["", "## predict vs DP3, whole process", "",
+                  *_process_rows(peers["predict_process"])]
     if results.get("schedulers"):
         lines += ["", "## Schedulers (docs/parallel.md)", "",
                   "predict of a 1 h NCP MS (30 slots, paper sky and stations) and grid of the "

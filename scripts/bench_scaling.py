@@ -33,7 +33,7 @@ STATIONS = {6: "CS00[1-3]HBA*", 14: "CS00[1-7]HBA*", 34: "CS0*HBA*", 48: "CS*HBA
 
 
 def _sky(path: Path, nside: int) -> int:
-    from bench_predict import _sky as grid_sky
+    from bench_predict import grid_skymodel as grid_sky
 
     return grid_sky(path, nside, 10.0, 0.0, np.pi / 2)
 
