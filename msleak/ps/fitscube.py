@@ -117,7 +117,13 @@ def read_image_cube(path: str | os.PathLike, stokes: str | None = None) -> dict:
 
 def image_paths(image: str | os.PathLike | Sequence[str | os.PathLike]) -> list[str]:
     """The image files of ``image``: a path, a glob pattern or a sequence of them (each
-    pattern expanded in sorted order)."""
+    pattern expanded in sorted order).
+
+    A pattern that matches WSClean's per-channel images (``NAME-0000-Q-image.fits``) and
+    also its multi-frequency-synthesis images of the whole band (``NAME-MFS-Q-image.fits``,
+    written with ``-channels-out``) keeps the per-channel ones only; files named
+    explicitly are always kept.
+    """
     items = [image] if isinstance(image, (str, os.PathLike)) else list(image)
     paths: list[str] = []
     for item in items:
@@ -126,12 +132,22 @@ def image_paths(image: str | os.PathLike | Sequence[str | os.PathLike]) -> list[
             found = sorted(glob.glob(text))
             if not found:
                 raise InputError(f"no file matches --image {text!r}")
+            channels = [p for p in found if not _is_wsclean_mfs(p)]
+            if channels and len(channels) < len(found):
+                log.info("--image %r: leaving out %d WSClean MFS image(s) of the whole band",
+                         text, len(found) - len(channels))
+                found = channels
             paths += found
         else:
             paths.append(text)
     if not paths:
         raise InputError("no image cube given")
     return paths
+
+
+def _is_wsclean_mfs(path: str) -> bool:
+    """Whether ``path`` is named as WSClean names a multi-frequency-synthesis image."""
+    return "-MFS-" in os.path.basename(path)
 
 
 def _same_pixels(info: dict, ref: dict) -> bool:
