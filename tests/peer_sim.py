@@ -1,0 +1,281 @@
+"""The visibility simulators pyuvsim and matvis, run on the metadata of an msleak MS.
+
+Used by tests/test_peer_simulators.py. Each peer gets the MS's antenna positions (as East,
+North, Up offsets from their mean position), TIME centres, channel frequencies, the same
+point sources and the same beam, and returns drift-scan visibilities that this module
+phases to the MS's phase centre. How each peer's conventions map onto msleak's (baseline
+sign, feed order, Stokes factor, polarization basis) is in docs/conventions.md, "Peer
+simulators (matvis, pyuvsim)".
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+C_M_S = 299792458.0
+
+
+@dataclass
+class Observation:
+    """What the peers need from an MS.
+
+    Attributes
+    ----------
+    positions : (nant, 3) ITRF antenna positions, m
+    times : (ntime,) TIME centres, UTC MJD seconds
+    freqs : (nchan,) channel centres, Hz
+    phase_centre : (ra, dec) of FIELD 0, J2000, rad
+    location : astropy EarthLocation of the mean antenna position
+    enu : (nant, 3) antenna offsets from ``location`` in its East, North, Up frame, m
+    """
+
+    positions: np.ndarray
+    times: np.ndarray
+    freqs: np.ndarray
+    phase_centre: tuple[float, float]
+    location: object
+    enu: np.ndarray
+
+
+def read_observation(ms) -> Observation:
+    """Antennas, times, channels and phase centre of ``ms`` (one field, one window)."""
+    import astropy.units as u
+    import casacore.tables as pt
+    from astropy.coordinates import EarthLocation
+    from pyuvdata.utils import ENU_from_ECEF
+
+    with pt.table(f"{ms}/ANTENNA", ack=False) as t:
+        positions = t.getcol("POSITION")
+    with pt.table(str(ms), ack=False) as t:
+        times = np.unique(t.getcol("TIME"))
+    with pt.table(f"{ms}/SPECTRAL_WINDOW", ack=False) as t:
+        freqs = t.getcol("CHAN_FREQ")[0]
+    with pt.table(f"{ms}/FIELD", ack=False) as t:
+        ra, dec = t.getcol("PHASE_DIR")[0, 0]
+    location = EarthLocation.from_geocentric(*positions.mean(axis=0), unit=u.m)
+    enu = ENU_from_ECEF(positions, center_loc=location)
+    return Observation(positions, times, freqs, (float(ra), float(dec)), location, enu)
+
+
+def astropy_time(mjd_s):
+    """astropy Time (UTC) of MS TIME values (MJD seconds)."""
+    from astropy.time import Time
+
+    return Time(np.asarray(mjd_s) / 86400.0, format="mjd", scale="utc")
+
+
+def j2000(ra, dec):
+    """SkyCoord of J2000 (FK5, equinox J2000) directions in rad, msleak's sky frame."""
+    import astropy.units as u
+    from astropy.coordinates import FK5, SkyCoord
+
+    return SkyCoord(ra=np.atleast_1d(ra) * u.rad, dec=np.atleast_1d(dec) * u.rad,
+                    frame=FK5(equinox="J2000"))
+
+
+def topocentric(ra, dec, mjd_s: float, location) -> np.ndarray:
+    """(n, 3) unit East, North, Up vectors of J2000 directions at one time (astropy AltAz,
+    no refraction), the frame both peers compute their fringes in."""
+    from astropy.coordinates import AltAz
+
+    altaz = j2000(ra, dec).transform_to(AltAz(obstime=astropy_time(mjd_s), location=location))
+    alt, az = altaz.alt.rad, altaz.az.rad
+    return np.stack([np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)], axis=-1)
+
+
+def _rephase(obs: Observation, it: int, ifreq: int) -> np.ndarray:
+    """(nant, nant) exp(-2 pi i (x_q - x_p) . s0 / lambda): removes the drift-scan fringe
+    of the phase centre s0 from the pair (p, q) at time index ``it``, channel ``ifreq``."""
+    s0 = topocentric(*obs.phase_centre, obs.times[it], obs.location)[0]
+    delay = obs.enu @ s0                                   # (nant,) m
+    return np.exp(-2j * np.pi * (delay[None, :] - delay[:, None])
+                  * obs.freqs[ifreq] / C_M_S)
+
+
+def pyuvsim_visibilities(obs: Observation, beam, ra, dec, stokes) -> np.ndarray:
+    """pyuvsim's visibilities of point sources, phased to the phase centre.
+
+    Parameters
+    ----------
+    beam : pyuvdata UVBeam or AnalyticBeam (E-field), the same for every antenna
+    ra, dec : (nsrc,) J2000, rad
+    stokes : (nsrc, nchan, 4) pyradiosky (I, Q, U, V) at the MS channels, Jy
+
+    Returns
+    -------
+    (ntime, nant, nant, nchan, 2, 2) complex: ``[t, p, q, c, a, b]`` is pyuvsim's
+    correlation of feed ``a`` of antenna p with feed ``b`` of antenna q (feeds in the
+    beam's ``feed_array`` order), filled for p < q, multiplied by
+    exp(-2 pi i (x_q - x_p) . s0 / lambda).
+    """
+    import astropy.units as u
+    from pyradiosky import SkyModel
+    from pyuvsim import Antenna, Baseline, BeamList, Telescope, UVEngine, UVTask
+
+    sky = SkyModel(name=[f"s{i}" for i in range(len(ra))], skycoord=j2000(ra, dec),
+                   stokes=np.transpose(stokes, (2, 1, 0)) * u.Jy, spectral_type="full",
+                   freq_array=obs.freqs * u.Hz)
+    telescope = Telescope("peer", obs.location, BeamList([beam]))
+    antennas = [Antenna(f"a{i}", i, obs.enu[i], 0) for i in range(len(obs.enu))]
+    nant, nchan = len(antennas), len(obs.freqs)
+    out = np.zeros((len(obs.times), nant, nant, nchan, 2, 2), complex)
+    engine = UVEngine()
+    for it, t in enumerate(obs.times):
+        time = astropy_time(t)
+        for c, f in enumerate(obs.freqs):
+            phasor = _rephase(obs, it, c)
+            for p in range(nant):
+                for q in range(p + 1, nant):
+                    engine.set_task(UVTask(sky, time, f * u.Hz,
+                                           Baseline(antennas[p], antennas[q]), telescope,
+                                           freq_i=c))
+                    xx, yy, xy, yx = engine.make_visibility()
+                    out[it, p, q, c] = np.array([[xx, xy], [yx, yy]]) * phasor[p, q]
+    return out
+
+
+def matvis_visibilities(obs: Observation, beam, ra, dec, flux) -> np.ndarray:
+    """matvis's visibilities of unpolarized point sources, phased to the phase centre.
+
+    Parameters
+    ----------
+    beam : pyuvdata UVBeam or AnalyticBeam (E-field), the same for every antenna
+    ra, dec : (nsrc,) J2000, rad (given to matvis as ICRS, which it requires)
+    flux : (nsrc, nchan) Stokes I, Jy
+
+    Returns
+    -------
+    (ntime, nant, nant, nchan, 2, 2) complex: ``[t, p, q, c, a, b]`` is matvis's pair
+    (p, q), feeds a, b in the beam's order, multiplied by
+    exp(-2 pi i (x_q - x_p) . s0 / lambda).
+    """
+    from matvis import simulate_vis
+
+    icrs = j2000(ra, dec).icrs
+    nant, ntime, nchan = len(obs.enu), len(obs.times), len(obs.freqs)
+    vis = simulate_vis(ants={i: obs.enu[i] for i in range(nant)}, fluxes=flux,
+                       ra=icrs.ra.rad, dec=icrs.dec.rad, freqs=obs.freqs,
+                       times=astropy_time(obs.times), beams=[beam],
+                       telescope_loc=obs.location, polarized=True, precision=2)
+    vis = vis.reshape(nchan, ntime, nant, nant, 2, 2).transpose(1, 2, 3, 0, 4, 5)
+    for it in range(ntime):
+        for c in range(nchan):
+            vis[it, :, :, c] *= _rephase(obs, it, c)[:, :, None, None]
+    return vis
+
+
+def as_ms_rows(peer: np.ndarray, obs: Observation, vis, pair_order: str = "pq",
+               ns_feed: int = 1) -> np.ndarray:
+    """A peer's (ntime, nant, nant, nchan, 2, 2) array on the rows of msleak's DataArray
+    ``vis`` (row, chan, corr XX, XY, YX, YY), X being the peer's feed ``ns_feed``
+    (North-South) and Y the other; ``pair_order`` "qp" takes the peer's pair (q, p) for
+    the row (p, q)."""
+    it = np.searchsorted(obs.times, vis.time.values)
+    a1, a2 = vis.antenna1.values, vis.antenna2.values
+    p, q = (a1, a2) if pair_order == "pq" else (a2, a1)
+    rows = peer[it, p, q]                                   # (row, chan, 2, 2)
+    x, y = ns_feed, 1 - ns_feed
+    out = np.empty(rows.shape[:2] + (4,), complex)
+    for k, name in enumerate(vis.corr.values):
+        a, b = {"XX": (x, x), "XY": (x, y), "YX": (y, x), "YY": (y, y)}[str(name)]
+        out[:, :, k] = rows[:, :, a, b]
+    return out
+
+
+def mirrored_azimuth(beam):
+    """A copy of an E-field beam (UVBeam or pyuvdata AnalyticBeam) with its azimuth
+    component negated: what makes pyuvsim pair pyradiosky's alt/az coherency with the
+    beam consistently (docs/conventions.md, "Peer simulators")."""
+    if hasattr(beam, "data_array"):
+        out = beam.copy()
+        out.data_array[0] = -out.data_array[0]
+        return out
+
+    class Mirrored(type(beam)):
+        def _efield_eval(self, **grids):
+            data = super()._efield_eval(**grids)
+            data[0] = -data[0]
+            return data
+
+    out = copy.copy(beam)
+    out.__class__ = Mirrored
+    return out
+
+
+def zenith_amplitude(beam) -> np.ndarray:
+    """(nfreq,) |E| of the zenith pixel component that is largest at the first frequency:
+    what msleak divides a UVBeam file by (docs/hera.md, "Normalisation")."""
+    zenith = int(np.argmin(np.abs(beam.axis2_array)))
+    at_zenith = beam.data_array[:, :, :, zenith, :]
+    a, f, k = np.unravel_index(np.argmax(np.abs(at_zenith[:, :, 0, :])),
+                               at_zenith[:, :, 0].shape)
+    return np.abs(at_zenith[a, f, :, k])
+
+
+def peak_amplitude(beam) -> np.ndarray:
+    """(nfreq,) the largest |E| per frequency: what pyuvsim's BeamList divides by."""
+    return np.abs(beam.data_array).max(axis=(0, 1, 3, 4))
+
+
+def hyperbeam_tile(latitude_rad: float):
+    """mwa_hyperbeam's analytic MWA tile (zenith delays, unit amplitudes, normalised to
+    the zenith) as a pyuvdata analytic E-field beam, evaluated exactly at every direction
+    a peer asks for (no interpolation).
+
+    Feeds ``x`` = the East-West dipole (``feed_angle`` 90 deg), ``y`` = North-South (0).
+    hyperbeam returns rows (EW, NS) and columns along increasing zenith angle (theta) and
+    increasing azimuth North through East (phi); pyuvdata's azimuth runs East through
+    North, so its az component is -phi and its za component theta.
+    """
+    import mwa_hyperbeam
+    from pyuvdata.analytic_beam import AnalyticBeam
+
+    class HyperbeamTile(AnalyticBeam):
+        basis_vector_type = "az_za"
+
+        def validate(self):
+            self.feed_array = np.asarray(["x", "y"])
+            self.feed_angle = np.asarray([np.pi / 2, 0.0])
+
+        def _efield_eval(self, *, az_grid, za_grid, f_grid):
+            data = self._get_empty_data_array(az_grid.shape).astype(complex)
+            tile = mwa_hyperbeam.AnalyticBeam()
+            up = za_grid < np.pi / 2                      # hyperbeam refuses the rest
+            for f in np.unique(f_grid):
+                sel = up & (f_grid == f)
+                az = np.mod(np.pi / 2 - az_grid[sel], 2 * np.pi)   # North through East
+                h = np.asarray(tile.calc_jones_array(az, za_grid[sel], float(f), [0] * 16,
+                                                     [1.0] * 16, latitude_rad, True))
+                h = h.reshape(-1, 2, 2)                   # (n, EW/NS, theta/phi)
+                data[0, 0][sel] = -h[:, 0, 1]
+                data[1, 0][sel] = h[:, 0, 0]
+                data[0, 1][sel] = -h[:, 1, 1]
+                data[1, 1][sel] = h[:, 1, 0]
+            return data
+
+    return dataclass(kw_only=True, eq=False)(HyperbeamTile)()
+
+
+def identity_beam():
+    """A pyuvdata analytic E-field beam whose x feed takes the azimuth component and y the
+    zenith-angle component, with gain 1 everywhere: J J^H is the identity, so unpolarized
+    sources see no beam at all."""
+    from pyuvdata.analytic_beam import AnalyticBeam
+
+    class IdentityBeam(AnalyticBeam):
+        basis_vector_type = "az_za"
+
+        def validate(self):
+            self.feed_array = np.asarray(["x", "y"])
+            self.feed_angle = np.asarray([np.pi / 2, 0.0])
+
+        def _efield_eval(self, *, az_grid, za_grid, f_grid):
+            data = self._get_empty_data_array(az_grid.shape).astype(complex)
+            data[0, 0] = 1.0
+            data[1, 1] = 1.0
+            return data
+
+    return dataclass(kw_only=True, eq=False)(IdentityBeam)()
