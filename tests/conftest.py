@@ -1,14 +1,55 @@
-"""Shared fixtures: tiny Measurement Sets built once per session, a fresh copy per test."""
+"""Shared fixtures: tiny Measurement Sets built once per session, a fresh copy per test.
+
+Tests download nothing, whatever the date: astropy's IERS auto-download is switched off
+for the whole session, in this process and in every process a test starts (``msleak``
+subprocesses) through an astropy configuration file in a session directory.
+"""
 
 from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+#: astropy.cfg of the session: the bundled IERS and leap-second tables only (they expire;
+#: once they have, astropy would otherwise try to download new ones)
+ASTROPY_CFG = "[utils.iers.iers]\nauto_download = False\n"
+_SESSION_ENV = ("XDG_CONFIG_HOME", "ASTROPY_CONFIG_DIR")
+_CONFIG_HOME = pytest.StashKey[tuple]()
+
+
+def pytest_configure(config):
+    """Before collection: no IERS download here (``iers.conf``) nor in subprocesses, which
+    read ``XDG_CONFIG_HOME/astropy/astropy.cfg`` (every astropy version msleak supports)
+    or ``ASTROPY_CONFIG_DIR`` (astropy 8+; it would take precedence if a user had set it)."""
+    from astropy.utils import iers
+
+    config_home = tempfile.TemporaryDirectory(prefix="msleak-tests-config-")
+    astropy_dir = Path(config_home.name) / "astropy"
+    astropy_dir.mkdir()
+    (astropy_dir / "astropy.cfg").write_text(ASTROPY_CFG)
+    config.stash[_CONFIG_HOME] = (config_home, {k: os.environ.get(k) for k in _SESSION_ENV})
+    os.environ["XDG_CONFIG_HOME"] = config_home.name
+    os.environ["ASTROPY_CONFIG_DIR"] = str(astropy_dir)
+    iers.conf.auto_download = False
+
+
+def pytest_unconfigure(config):
+    """Restore the environment and remove the session's configuration directory."""
+    config_home, saved = config.stash.get(_CONFIG_HOME, (None, {}))
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+    if config_home is not None:
+        config_home.cleanup()
+
 
 SMALL_MS_PARAMS = dict(field="3c196", duration=4 * 120 / 3600, interval=120.0,
                        freq_min=150e6, nchan=4, chan_width=195312.5,

@@ -25,6 +25,15 @@ def channel_freqs(ms):
         return np.asarray(t.getcell("CHAN_FREQ", 0), float)
 
 
+def lm_to_radec(ra0, dec0, l, m):
+    """(ra, dec) in rad of direction cosines (l East, m North) about the phase centre
+    (ra0, dec0) in rad: the inverse of the SIN projection. Scalars or arrays."""
+    n = np.sqrt(1 - l * l - m * m)
+    dec = np.arcsin(m * np.cos(dec0) + n * np.sin(dec0))
+    ra = ra0 + np.arctan2(l, n * np.cos(dec0) - m * np.sin(dec0))
+    return ra, dec
+
+
 def write_sky(path, sources):
     """makesourcedb file; sources = [(ra_rad, dec_rad, I, Q, U, V), ...] (bare numbers = rad)."""
     lines = ["format = Name, Type, Ra, Dec, I, Q, U, V"]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-C_M_S = 299792458.0
+from ms_helpers import C, channel_freqs, phase_centre
 
 
 @dataclass
@@ -51,13 +51,9 @@ def read_observation(ms) -> Observation:
         positions = t.getcol("POSITION")
     with pt.table(str(ms), ack=False) as t:
         times = np.unique(t.getcol("TIME"))
-    with pt.table(f"{ms}/SPECTRAL_WINDOW", ack=False) as t:
-        freqs = t.getcol("CHAN_FREQ")[0]
-    with pt.table(f"{ms}/FIELD", ack=False) as t:
-        ra, dec = t.getcol("PHASE_DIR")[0, 0]
     location = EarthLocation.from_geocentric(*positions.mean(axis=0), unit=u.m)
     enu = ENU_from_ECEF(positions, center_loc=location)
-    return Observation(positions, times, freqs, (float(ra), float(dec)), location, enu)
+    return Observation(positions, times, channel_freqs(ms), phase_centre(ms), location, enu)
 
 
 def astropy_time(mjd_s):
@@ -92,7 +88,7 @@ def _rephase(obs: Observation, it: int, ifreq: int) -> np.ndarray:
     s0 = topocentric(*obs.phase_centre, obs.times[it], obs.location)[0]
     delay = obs.enu @ s0                                   # (nant,) m
     return np.exp(-2j * np.pi * (delay[None, :] - delay[:, None])
-                  * obs.freqs[ifreq] / C_M_S)
+                  * obs.freqs[ifreq] / C)
 
 
 def pyuvsim_visibilities(obs: Observation, beam, ra, dec, stokes) -> np.ndarray:
@@ -167,16 +163,13 @@ def matvis_visibilities(obs: Observation, beam, ra, dec, flux) -> np.ndarray:
     return vis
 
 
-def as_ms_rows(peer: np.ndarray, obs: Observation, vis, pair_order: str = "pq",
-               ns_feed: int = 1) -> np.ndarray:
+def as_ms_rows(peer: np.ndarray, obs: Observation, vis, ns_feed: int = 1) -> np.ndarray:
     """A peer's (ntime, nant, nant, nchan, 2, 2) array on the rows of msleak's DataArray
-    ``vis`` (row, chan, corr XX, XY, YX, YY), X being the peer's feed ``ns_feed``
-    (North-South) and Y the other; ``pair_order`` "qp" takes the peer's pair (q, p) for
-    the row (p, q)."""
+    ``vis`` (row, chan, corr XX, XY, YX, YY): the peer's pair (p, q) for the row of
+    antenna1 p and antenna2 q, X being the peer's feed ``ns_feed`` (North-South) and Y
+    the other."""
     it = np.searchsorted(obs.times, vis.time.values)
-    a1, a2 = vis.antenna1.values, vis.antenna2.values
-    p, q = (a1, a2) if pair_order == "pq" else (a2, a1)
-    rows = peer[it, p, q]                                   # (row, chan, 2, 2)
+    rows = peer[it, vis.antenna1.values, vis.antenna2.values]   # (row, chan, 2, 2)
     x, y = ns_feed, 1 - ns_feed
     out = np.empty(rows.shape[:2] + (4,), complex)
     for k, name in enumerate(vis.corr.values):
@@ -187,8 +180,8 @@ def as_ms_rows(peer: np.ndarray, obs: Observation, vis, pair_order: str = "pq",
 
 def mirrored_azimuth(beam):
     """A copy of an E-field beam (UVBeam or pyuvdata AnalyticBeam) with its azimuth
-    component negated: what makes pyuvsim pair pyradiosky's alt/az coherency with the
-    beam consistently (docs/conventions.md, "Peer simulators")."""
+    component negated: what pyuvsim 1.4.2 needs to agree with the geometry for polarized
+    sources (docs/conventions.md, "Peer simulators")."""
     if hasattr(beam, "data_array"):
         out = beam.copy()
         out.data_array[0] = -out.data_array[0]

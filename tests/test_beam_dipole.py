@@ -24,9 +24,6 @@ def _astropy_projection(ra, dec, t_mjd_s, site_itrf, *, basis, step=1e-6):
     from astropy import units as u
     from astropy.coordinates import AltAz, EarthLocation, SkyCoord
     from astropy.time import Time
-    from astropy.utils import iers
-
-    iers.conf.auto_download = False
     loc = EarthLocation.from_geocentric(*site_itrf, unit=u.m)
     frame = AltAz(obstime=Time(t_mjd_s / 86400.0, format="mjd", scale="utc"), location=loc)
 

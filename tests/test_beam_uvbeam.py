@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from astropy.coordinates import FK5, AltAz, EarthLocation, SkyCoord
 from astropy.time import Time
-from astropy.utils import iers
 from click.testing import CliRunner
 from pyuvdata.telescopes import KNOWN_TELESCOPES
 
@@ -22,8 +21,6 @@ from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io.ms import column_names, read_antennas
 from msleak.io.uvbeam import default_beam_file, read_beam_file
-
-iers.conf.auto_download = False  # astropy's bundled IERS tables: no network
 
 _LOC = KNOWN_TELESCOPES["HERA"]["location"]
 HERA_ITRF = np.array([_LOC.x.to_value("m"), _LOC.y.to_value("m"), _LOC.z.to_value("m")])

@@ -15,15 +15,17 @@ import warnings
 import numpy as np
 import pytest
 
-hp = pytest.importorskip("hera_pspec", reason="hera_pspec (HERA's power spectra) not installed")
-pyuvdata = pytest.importorskip("pyuvdata", reason="pyuvdata (msleak[hera]) is not installed")
-tables = pytest.importorskip("casacore.tables", reason="python-casacore is not installed")
+from peers import require
 
+hp = require("hera_pspec", "hera_pspec (HERA's power spectra, msleak[test]) is not installed")
+pyuvdata = require("pyuvdata", "pyuvdata (msleak[hera]) is not installed")
+
+import casacore.tables as tables  # noqa: E402
 from astropy.coordinates import EarthLocation  # noqa: E402
 from scipy.signal import windows  # noqa: E402
 
 import msleak  # noqa: E402
-from msleak.constants import BOLTZMANN, SPEED_OF_LIGHT  # noqa: E402
+from msleak.constants import BOLTZMANN, SPEED_OF_LIGHT, jy_per_kelvin  # noqa: E402
 from msleak.ps.cosmology import cosmo_at, jy2_to_mk2_mpc3, make_cosmology  # noqa: E402
 
 H0, OM0 = 67.66, 0.30966          # Planck18's H0 and Om0 as a flat LambdaCDM, no radiation
@@ -90,7 +92,17 @@ def hera_uvp(hera_ms):
         # which astropy downloads on first use; tests download nothing, and "HERA" is in
         # pyuvdata's own table of telescopes, which is what it uses then.
         mp.setattr(EarthLocation, "get_site_names", classmethod(lambda cls, *a, **k: []))
-        warnings.simplefilter("ignore")
+        # expected and harmless here: pyuvdata takes HERA's position from that table; it
+        # finds the MS's UVW (antenna 2 - antenna 1) opposite to its own baselines and
+        # conjugates them (each baseline is crossed with itself: |V|^2 is unchanged);
+        # hera_pspec reads pyuvdata's deprecated x_orientation, and casts its window
+        # functions (not used here) to real
+        for message, category in (
+                ("Setting telescope_location to value in known_telescopes", UserWarning),
+                ("UVW orientation appears to be flipped", UserWarning),
+                ("The Telescope.x_orientation attribute is deprecated", DeprecationWarning),
+                ("Casting complex values to real", np.exceptions.ComplexWarning)):
+            warnings.filterwarnings("ignore", message=message, category=category)
         uvd = pyuvdata.UVData.from_file(str(hera_ms["path"]), file_type="ms")
         uvd.vis_units = "Jy"  # msleak's DATA is in Jy; the MS has no unit pyuvdata reads
         ds = hp.PSpecData(dsets=[uvd, uvd.copy()], wgts=[None, None], beam=_hera_beam())
@@ -110,8 +122,9 @@ def _msleak_cosmo(freq_hz: float):
 
 
 def _jy_to_mk(freq_hz):
-    """msleak's Jy -> mK for a source filling Omega_p: 1e-26 lambda^2 / (2 k_B Omega_p) K."""
-    return 1e-26 * (SPEED_OF_LIGHT / freq_hz) ** 2 / (2 * BOLTZMANN * OMEGA_P) * 1e3
+    """msleak's Jy -> mK for a source filling Omega_p (msleak.constants.jy_per_kelvin,
+    lambda^2 / (2 k_B Omega_p) K per Jy)."""
+    return 1e3 / jy_per_kelvin(freq_hz, OMEGA_P)
 
 
 def test_cosmology_factors(hera_ms):
@@ -138,13 +151,20 @@ def test_cosmology_factors(hera_ms):
 
 def test_jy_to_mk_differs_only_by_boltzmann_constant(hera_ms):
     """hera_pspec's Jy -> mK (per channel, its beam's Omega_p) equals msleak's
-    lambda^2 / (2 k_B Omega_p) to 1e-12 once its CODATA 2014 k_B (1.38064852e-23 J/K) is
-    replaced by the exact SI value msleak uses (1.380649e-23; ratio 1 + 3.5e-7)."""
+    (jy_per_kelvin) to 1e-12 once its CODATA 2014 k_B (1.38064852e-23 J/K) is replaced by
+    the exact SI value msleak uses (1.380649e-23; ratio 1 + 3.5e-7). msleak's power
+    normalisation jy2_to_mk2_mpc3 holds the same conversion: it equals
+    B X^2 Y Omega (Jy -> mK over Omega)^2 (1e-12: both are a few float64 operations)."""
     freq = hera_ms["freq"]
     hera = _hera_beam().Jy_to_mK(freq)
     k_ratio = BOLTZMANN / hp.conversions.units.kb
     assert abs(k_ratio - 1) > 1e-7  # the two constants do differ
     np.testing.assert_allclose(hera / k_ratio, _jy_to_mk(freq), rtol=1e-12)
+    fc, bandwidth = _centre(hera_ms), NCHAN * (freq[1] - freq[0])
+    mc = _msleak_cosmo(fc)
+    assert jy2_to_mk2_mpc3(mc, OMEGA_P, bandwidth) == pytest.approx(
+        bandwidth * mc.x_mpc_per_rad ** 2 * mc.y_mpc_per_hz * OMEGA_P * _jy_to_mk(fc) ** 2,
+        rel=1e-12)
 
 
 def test_normalisation_window_and_bandwidth(hera_ms, msleak_ps, hera_uvp):

@@ -15,19 +15,18 @@ import warnings
 import numpy as np
 import pytest
 
-pytest.importorskip("pyuvsim", reason="pyuvsim (msleak[hera]) runs the peer simulations")
-pytest.importorskip("pyradiosky", reason="pyradiosky holds pyuvsim's polarized sky")
-pytest.importorskip("matvis", reason="matvis is the second peer simulator (msleak[test])")
-pytest.importorskip("mwa_hyperbeam", reason="the MWA tile beam (msleak[mwa])")
+from peers import require
 
-from astropy.utils import iers  # noqa: E402
+require("pyuvsim", "pyuvsim (msleak[hera]) runs the peer simulations")
+require("pyradiosky", "pyradiosky holds pyuvsim's polarized sky")
+require("matvis", "matvis is the second peer simulator (msleak[test])")
+require("mwa_hyperbeam", "the MWA tile beam (msleak[mwa])")
 
 import peer_sim as ps  # noqa: E402
+from ms_helpers import C  # noqa: E402
 from msleak.predict.engine import predict  # noqa: E402
 from msleak.sky.sources import PointSources  # noqa: E402
 from msleak.telescope.simulate import simulate  # noqa: E402
-
-iers.conf.auto_download = False  # astropy's bundled IERS tables: no network
 
 #: Agreement required, as a fraction of the largest |visibility|. What separates msleak
 #: from the peers (docs/conventions.md, "Peer simulators"): their fringes use each
@@ -36,8 +35,8 @@ iers.conf.auto_download = False  # astropy's bundled IERS tables: no network
 #: directions up to 4e-6 rad apart, which moves the beam where it is steep; and for HERA
 #: the peers evaluate one beam frame for the whole array where msleak turns the beam to
 #: each dish's own horizon. Measured in all: at most 2.1e-4. A swapped feed order (0.34)
-#: or azimuth sign (0.29), both checked below, a Stokes factor of 2 (0.5) or a baseline
-#: sign (order one) would break it.
+#: or the other azimuth handling (0.36), both checked below, a Stokes factor of 2 (0.5)
+#: or a baseline sign (order one) would break it.
 TOLERANCE = 1e-3
 #: HERA: 10 dishes within 25 m of HH66 (a patch of the hexagon, baselines up to 50 m)
 HERA_DISHES = "HH50,HH51,HH52,HH65,HH66,HH67,HH81,HH82,HH83,HH84"
@@ -105,6 +104,92 @@ def _hera_beam():
         return UVBeam.from_file(str(default_beam_file()))
 
 
+#: The two ways a beam's azimuth component can be handed to pyuvsim: as the beam gives it,
+#: or negated (peer_sim.mirrored_azimuth). Which one the installed pyuvsim needs for
+#: polarized sources is decided against geometry alone (the ``azimuth`` fixture).
+AZIMUTH_HANDLING = {"as given": lambda beam: beam, "mirrored": ps.mirrored_azimuth}
+#: Q, U sign conventions tried with each handling: only the identity may agree
+QU_SIGNS = ((1, 1, 1, 1), (1, -1, 1, 1), (1, 1, -1, 1), (1, -1, -1, 1))
+#: pyuvsim against the dipole geometry, in units of a unit source: pyradiosky turns the
+#: field to alt/az by its frame axes' average rotation plus the shortest turn onto each
+#: apparent position, not by the central differences used here; they differ by 1.7e-5
+#: (printed), a wrong azimuth sign by 1.1 and a wrong Q or U sign by 0.6 to 1.9
+GEOMETRY_TOLERANCE = 1e-4
+
+
+def _short_dipole_errors() -> dict:
+    """{(handling, Q/U signs): largest |pyuvsim - geometry|} for five polarized sources
+    seen by pyuvdata's analytic short dipoles on one zero-length baseline, against the
+    projection of each dipole's axis on each source's electric field computed here from
+    astropy's AltAz alone (no msleak)."""
+    import astropy.units as u
+    from astropy.coordinates import AltAz, EarthLocation, SkyCoord
+    from pyuvdata.analytic_beam import ShortDipoleBeam
+
+    location = EarthLocation.from_geodetic(21.4283 * u.deg, -30.7215 * u.deg, 1051.7 * u.m)
+    t = 58000.25 * 86400.0
+    frame = AltAz(obstime=ps.astropy_time(t), location=location)
+    az = np.radians([30.0, 120.0, 210.0, 300.0, 75.0])          # North through East
+    alt = np.radians([60.0, 45.0, 70.0, 55.0, 80.0])
+    chi = np.radians([20.0, -35.0, 70.0, 5.0, -80.0])           # IAU, North through East
+    radec = SkyCoord(az=az * u.rad, alt=alt * u.rad, frame=frame).transform_to(
+        ps.j2000(0.0, 0.0).frame)
+    ra, dec = radec.ra.rad, radec.dec.rad
+    # each source's sky North and East in (East, North, Up): central differences of 1e-5
+    # rad (truncation ~1e-10; astropy's rounding, ~1e-12 per vector, adds ~1e-7)
+    step = 1e-5
+    north = (ps.topocentric(ra, dec + step, t, location)
+             - ps.topocentric(ra, dec - step, t, location))
+    east = (ps.topocentric(ra + step / np.cos(dec), dec, t, location)
+            - ps.topocentric(ra - step / np.cos(dec), dec, t, location))
+    north /= np.linalg.norm(north, axis=1)[:, None]
+    east /= np.linalg.norm(east, axis=1)[:, None]
+    field = np.cos(chi)[:, None] * north + np.sin(chi)[:, None] * east    # (nsrc, 3)
+    # feeds x (East-West dipole) and y (North-South): V_ab = sum I (a . e)(b . e)
+    volts = field[:, :2]                                        # (nsrc, [x, y])
+    expected = np.einsum("sa,sb->ab", volts, volts)
+
+    stokes = np.stack([np.ones(5), np.cos(2 * chi), np.sin(2 * chi), np.zeros(5)], -1)
+    obs = ps.Observation(positions=np.zeros((2, 3)), times=np.array([t]),
+                         freqs=np.array([150e6]), phase_centre=(ra[0], dec[0]),
+                         location=location, enu=np.zeros((2, 3)))   # one zero-length baseline
+    errors = {}
+    for name, handle in AZIMUTH_HANDLING.items():
+        for signs in QU_SIGNS:
+            got = ps.pyuvsim_visibilities(obs, handle(ShortDipoleBeam()), ra, dec,
+                                          (stokes * np.array(signs))[:, None, :])[0, 0, 1, 0]
+            errors[name, signs] = float(np.abs(got - expected).max())
+    return errors
+
+
+def _geometry_verdict(errors: dict) -> tuple[str, str]:
+    """(the handling that agrees with the geometry, the other one); fails unless exactly
+    one handling agrees, and with Q and U as they are."""
+    for (name, signs), error in errors.items():
+        print(f"short dipoles, pyuvsim, azimuth {name}, signs {signs}: {error:.2e}")
+    agree = [key for key, error in errors.items() if error < GEOMETRY_TOLERANCE]
+    if len(agree) != 1 or agree[0][1] != QU_SIGNS[0]:
+        pytest.fail(f"pyuvsim with short dipoles: {agree or 'no'} (azimuth handling, Q/U "
+                    f"signs) agree with the geometry; exactly one handling with Q, U as "
+                    f"given should: {errors}", pytrace=False)
+    right = agree[0][0]
+    return right, next(name for name in AZIMUTH_HANDLING if name != right)
+
+
+@pytest.fixture(scope="module")
+def dipole_errors() -> dict:
+    """_short_dipole_errors(), computed once."""
+    return _short_dipole_errors()
+
+
+@pytest.fixture(scope="module")
+def azimuth(dipole_errors) -> tuple[str, str]:
+    """(right, wrong): the azimuth handling with which the installed pyuvsim agrees with
+    the geometry for polarized sources, and the other (test_pyuvsim_azimuth_sign_
+    against_geometry); errors, so the polarized tests fail, when neither or both do."""
+    return _geometry_verdict(dipole_errors)
+
+
 def test_hera_unpolarized_equals_matvis_and_pyuvsim(hera):
     ms, obs = hera
     ra, dec, stokes = _sky(obs, polarized=False)
@@ -124,28 +209,28 @@ def test_hera_unpolarized_equals_matvis_and_pyuvsim(hera):
         assert max(worst.values()) < TOLERANCE, (name, worst)
 
 
-def test_hera_polarized_equals_pyuvsim(hera):
+def test_hera_polarized_equals_pyuvsim(hera, azimuth):
     ms, obs = hera
     ra, dec, stokes = _sky(obs, polarized=True, seed=2)
     vis = _msleak(ms, obs, ra, dec, stokes, "uvbeam")
     beam = _hera_beam()
     scale = (2 * (ps.peak_amplitude(beam) / ps.zenith_amplitude(beam)) ** 2)[None, :, None]
-    # pyuvsim pairs pyradiosky's (za, az North through East) coherency with the beam's
-    # azimuth component East through North: the mirrored beam undoes that (see
-    # test_pyuvsim_azimuth_sign_against_geometry); pyradiosky's V is minus msleak's
+    # the beam's azimuth component as the geometry test finds pyuvsim needs it (mirrored
+    # for pyuvsim 1.4.2); pyradiosky's V is minus msleak's
+    right, wrong = (AZIMUTH_HANDLING[name](beam) for name in azimuth)
     flip_v = np.array([1.0, 1.0, 1.0, -1.0])
-    peer = ps.pyuvsim_visibilities(obs, ps.mirrored_azimuth(beam), ra, dec, stokes * flip_v)
+    peer = ps.pyuvsim_visibilities(obs, right, ra, dec, stokes * flip_v)
     worst = _worst(vis, ps.as_ms_rows(peer, obs, vis) * scale)
-    print(f"HERA polarized, pyuvsim: {worst}")
+    print(f"HERA polarized, pyuvsim, azimuth {azimuth[0]}: {worst}")
     assert max(worst.values()) < TOLERANCE, worst
     # the file's x is HERA's East-West dipole: taken as msleak's X, Q changes sign
     swapped = _worst(vis, ps.as_ms_rows(peer, obs, vis, ns_feed=0) * scale)
     print(f"HERA polarized, pyuvsim, feeds swapped: {swapped}")
     assert max(swapped.values()) > 20 * TOLERANCE
-    raw = ps.pyuvsim_visibilities(obs, beam, ra, dec, stokes)
-    raw_worst = _worst(vis, ps.as_ms_rows(raw, obs, vis) * scale)
-    print(f"HERA polarized, pyuvsim with the beam as given: {raw_worst}")
-    assert max(raw_worst.values()) > 20 * TOLERANCE
+    other = ps.pyuvsim_visibilities(obs, wrong, ra, dec, stokes * flip_v)
+    other_worst = _worst(vis, ps.as_ms_rows(other, obs, vis) * scale)
+    print(f"HERA polarized, pyuvsim, azimuth {azimuth[1]}: {other_worst}")
+    assert max(other_worst.values()) > 20 * TOLERANCE
 
 
 def test_hyperbeam_analytic_basis():
@@ -180,68 +265,27 @@ def test_mwa_unpolarized_equals_matvis(mwa):
     assert max(worst.values()) < TOLERANCE, worst
 
 
-def test_mwa_polarized_equals_pyuvsim(mwa):
+def test_mwa_polarized_equals_pyuvsim(mwa, azimuth):
     ms, obs = mwa
     ra, dec, stokes = _sky(obs, polarized=True, seed=4)
     vis = _msleak(ms, obs, ra, dec, stokes, "hyperbeam")
-    tile = ps.mirrored_azimuth(ps.hyperbeam_tile(obs.location.lat.rad))
+    tile = AZIMUTH_HANDLING[azimuth[0]](ps.hyperbeam_tile(obs.location.lat.rad))
     peer = ps.pyuvsim_visibilities(obs, tile, ra, dec, stokes * np.array([1.0, 1.0, 1.0, -1.0]))
     worst = _worst(vis, 2 * ps.as_ms_rows(peer, obs, vis))
-    print(f"MWA polarized, pyuvsim: {worst}")
+    print(f"MWA polarized, pyuvsim, azimuth {azimuth[0]}: {worst}")
     assert max(worst.values()) < TOLERANCE, worst
 
 
-def test_pyuvsim_azimuth_sign_against_geometry():
-    """Who is right about the azimuth component: pyuvsim with pyuvdata's analytic short
-    dipoles against the projection of each dipole's axis on each source's electric field,
-    computed here from astropy's AltAz alone. Only the mirrored beam gives the geometry;
-    msleak's reading of UVBeam's basis is checked against the same dipoles in
-    tests/test_beam_uvbeam.py."""
-    import astropy.units as u
-    from astropy.coordinates import AltAz, EarthLocation, SkyCoord
-    from pyuvdata.analytic_beam import ShortDipoleBeam
-
-    location = EarthLocation.from_geodetic(21.4283 * u.deg, -30.7215 * u.deg, 1051.7 * u.m)
-    t = 58000.25 * 86400.0
-    frame = AltAz(obstime=ps.astropy_time(t), location=location)
-    az = np.radians([30.0, 120.0, 210.0, 300.0, 75.0])          # North through East
-    alt = np.radians([60.0, 45.0, 70.0, 55.0, 80.0])
-    chi = np.radians([20.0, -35.0, 70.0, 5.0, -80.0])           # IAU, North through East
-    radec = SkyCoord(az=az * u.rad, alt=alt * u.rad, frame=frame).transform_to(
-        ps.j2000(0.0, 0.0).frame)
-    ra, dec = radec.ra.rad, radec.dec.rad
-    # each source's sky North and East in (East, North, Up): central differences of 1e-5
-    # rad (truncation ~1e-10; astropy's rounding, ~1e-12 per vector, adds ~1e-7)
-    step = 1e-5
-    north = (ps.topocentric(ra, dec + step, t, location)
-             - ps.topocentric(ra, dec - step, t, location))
-    east = (ps.topocentric(ra + step / np.cos(dec), dec, t, location)
-            - ps.topocentric(ra - step / np.cos(dec), dec, t, location))
-    north /= np.linalg.norm(north, axis=1)[:, None]
-    east /= np.linalg.norm(east, axis=1)[:, None]
-    field = np.cos(chi)[:, None] * north + np.sin(chi)[:, None] * east    # (nsrc, 3)
-    # feeds x (East-West dipole) and y (North-South): V_ab = sum I (a . e)(b . e)
-    volts = field[:, :2]                                        # (nsrc, [x, y])
-    expected = np.einsum("sa,sb->ab", volts, volts)
-
-    stokes = np.stack([np.ones(5), np.cos(2 * chi), np.sin(2 * chi), np.zeros(5)], -1)
-    obs = ps.Observation(positions=np.zeros((2, 3)), times=np.array([t]),
-                         freqs=np.array([150e6]), phase_centre=(ra[0], dec[0]),
-                         location=location, enu=np.zeros((2, 3)))   # one zero-length baseline
-    # as given, no sign convention of Q or U makes it agree: the mirror is not global
-    cases = [(ps.mirrored_azimuth(ShortDipoleBeam()), (1, 1, 1, 1), True)]
-    cases += [(ShortDipoleBeam(), signs, False)
-              for signs in ((1, 1, 1, 1), (1, -1, 1, 1), (1, 1, -1, 1), (1, -1, -1, 1))]
-    for beam, signs, close in cases:
-        got = ps.pyuvsim_visibilities(obs, beam, ra, dec,
-                                      (stokes * np.array(signs))[:, None, :])[0, 0, 1, 0]
-        # pyradiosky turns the field to alt/az by its frame axes' average rotation plus
-        # the shortest turn onto each apparent position, not by these central differences:
-        # they differ by 1.7e-5 of a unit source (printed); the wrong sign gives 1.1
-        error = float(np.abs(got - expected).max())
-        print(f"short dipoles, {'mirrored' if close else 'as given'}, signs {signs}: "
-              f"{error:.2e}")
-        assert (error < 1e-4) == close, (got, expected)
+def test_pyuvsim_azimuth_sign_against_geometry(dipole_errors):
+    """Which azimuth handling pyuvsim needs for polarized sources: pyuvsim with pyuvdata's
+    analytic short dipoles, the beam's azimuth component as given or negated and Q, U
+    with either sign, against geometry alone (_short_dipole_errors). Exactly one
+    handling, with Q and U as they are, must agree (pyuvsim 1.4.2: the mirrored one); a
+    pyuvsim that agrees both ways or neither fails. msleak's reading of UVBeam's basis is
+    checked against the same dipoles in tests/test_beam_uvbeam.py."""
+    right, wrong = _geometry_verdict(dipole_errors)
+    print(f"pyuvsim agrees with the geometry with the beam's azimuth component {right}, "
+          f"not {wrong}")
 
 
 def _fringes_without_aberration(obs, vis, ra, dec) -> np.ndarray:
@@ -266,7 +310,7 @@ def _fringes_without_aberration(obs, vis, ra, dec) -> np.ndarray:
         b = obs.enu[vis.antenna2.values[rows]] - obs.enu[vis.antenna1.values[rows]]
         delay = b @ (s[:-1] - s[-1]).T                          # (row, nsrc) m
         out[rows] = np.exp(2j * np.pi * delay[:, None, :] * obs.freqs[None, :, None]
-                           / ps.C_M_S).sum(-1)
+                           / C).sum(-1)
     return out
 
 

@@ -20,19 +20,13 @@ from faults import fail_after_chunks
 from ms_helpers import C, copy_spectral_window
 from ms_helpers import channel_freqs as _freq
 from ms_helpers import direct_dft as _direct_dft
+from ms_helpers import lm_to_radec
 from ms_helpers import phase_centre as _phase_centre
 from ms_helpers import table as _table
 from ms_helpers import write_sky as _write_sky
 
 
 # ----------------------------------------------------------------------------- helpers
-def _offsets_to_radec(ra0, dec0, l, m):
-    n = np.sqrt(1 - l * l - m * m)
-    dec = np.arcsin(m * np.cos(dec0) + n * np.sin(dec0))
-    ra = ra0 + np.arctan2(l, n * np.cos(dec0) - m * np.sin(dec0))
-    return ra, dec
-
-
 def _col(ms, name):
     with _table(ms) as t:
         return t.getcol(name)
@@ -77,7 +71,7 @@ def test_off_centre_sources_match_direct_dft(make_ms, tmp_path):
     ra0, dec0 = _phase_centre(shuffled)
     rng = np.random.default_rng(7)
     l, m = rng.uniform(-0.09, 0.09, (2, 8))
-    ra, dec = _offsets_to_radec(ra0, dec0, l, m)
+    ra, dec = lm_to_radec(ra0, dec0, l, m)
     sources = [(ra[k], dec[k], *rng.normal(0, 1, 4)) for k in range(8)]
     sky = _write_sky(tmp_path / "off.skymodel", sources)
     run_predict(shuffled, sky, beam="none", double=True, progress=False)
@@ -140,7 +134,7 @@ def test_per_station_beam_and_centre_correction_match_direct_sum(small_lofar_ms,
     ra0, dec0 = _phase_centre(small_lofar_ms)
     rng = np.random.default_rng(8)
     l, m = rng.uniform(-0.06, 0.06, (2, 5))
-    ra, dec = _offsets_to_radec(ra0, dec0, l, m)
+    ra, dec = lm_to_radec(ra0, dec0, l, m)
     sources = [(ra[k], dec[k], *rng.normal(0, 1, 4)) for k in range(5)]
     sky = _write_sky(tmp_path / "b.skymodel", sources)
     run_predict(small_lofar_ms, sky, beam="everybeam", double=True, progress=False,
@@ -196,7 +190,7 @@ def test_lofar_beam_factors_give_the_visibilities_of_its_jones(small_lofar_ms, t
     column stores complex64: one rounding apart)."""
     ra0, dec0 = _phase_centre(small_lofar_ms)
     rng = np.random.default_rng(21)
-    ra, dec = _offsets_to_radec(ra0, dec0, *rng.uniform(-0.06, 0.06, (2, 6)))
+    ra, dec = lm_to_radec(ra0, dec0, *rng.uniform(-0.06, 0.06, (2, 6)))
     sky = _write_sky(tmp_path / "f.skymodel",
                      [(ra[k], dec[k], *rng.normal(0, 1, 4)) for k in range(6)])
     kw = dict(beam="everybeam", double=True, progress=False,
@@ -417,7 +411,7 @@ def _add_spectral_window(ms, shift_hz):
 def test_two_spectral_windows_loop_and_select(small_lofar_ms, tmp_path):
     n = _add_spectral_window(small_lofar_ms, 10e6)
     ra0, dec0 = _phase_centre(small_lofar_ms)
-    ra, dec = _offsets_to_radec(ra0, dec0, 0.03, -0.02)
+    ra, dec = lm_to_radec(ra0, dec0, 0.03, -0.02)
     sources = [(ra, dec, 1.0, 0.5, -0.2, 0.1)]
     sky = _write_sky(tmp_path / "s.skymodel", sources)
     run_predict(small_lofar_ms, sky, beam="none", double=True, progress=False)

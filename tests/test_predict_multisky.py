@@ -21,7 +21,7 @@ import pytest
 from click.testing import CliRunner
 
 from casa_ms import build_ms
-from ms_helpers import direct_dft, phase_centre, table, write_sky
+from ms_helpers import direct_dft, lm_to_radec, phase_centre, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
@@ -58,14 +58,8 @@ class _CountingBeam:
 
 def _radec(ms, offsets_deg):
     """(ra, dec) of points at (dl, dm) degrees from the phase centre (SIN projection)."""
-    ra0, dec0 = phase_centre(ms)
-    out = []
-    for dl, dm in np.radians(offsets_deg):
-        n = np.sqrt(1 - dl * dl - dm * dm)
-        dec = np.arcsin(dm * np.cos(dec0) + n * np.sin(dec0))
-        ra = ra0 + np.arctan2(dl, n * np.cos(dec0) - dm * np.sin(dec0))
-        out.append((float(ra), float(dec)))
-    return out
+    ra, dec = lm_to_radec(*phase_centre(ms), *np.radians(offsets_deg).T)
+    return list(zip(ra.tolist(), dec.tolist()))
 
 
 def _skies(tmp_path, ms):

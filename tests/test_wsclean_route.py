@@ -15,7 +15,6 @@ visibility route's.
 from __future__ import annotations
 
 import math
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -23,6 +22,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from ms_helpers import C, channel_freqs, lm_to_radec
+from peers import require_executable
 
 NPIX = 64
 PIXEL_DEG = math.degrees(1.0 / 1024)   # 64 pixels of 1/1024 rad: cells of 16 wavelengths
@@ -31,19 +32,9 @@ RA0, DEC0 = 123.4, 48.2                # the 3c196 preset's phase centre, deg
 I0, Q0, U0, ALPHA, RM = 2.0, 0.6, -0.4, -0.7, 40.0   # Jy at NU0; rad m^-2
 NU0 = 150e6
 OFF_LM = (math.radians(0.5), math.radians(0.3))      # MODEL_OFF's source (l East, m North)
-C_LIGHT = 299792458.0
 # WSClean's default -wgridder-accuracy: ducc0's wgridder accuracy, the L2 norm of an
 # image's error relative to the L2 norm of the image (ducc0.misc.l2error)
 WGRIDDER_ACCURACY = 1e-4
-
-
-def _radec(l: float, m: float) -> tuple[float, float]:
-    """RA, Dec (deg) of direction cosines (l, m) about the phase centre (SIN projection)."""
-    d0 = math.radians(DEC0)
-    n = math.sqrt(1 - l * l - m * m)
-    dec = math.asin(m * math.cos(d0) + n * math.sin(d0))
-    ra = math.radians(RA0) + math.atan2(l, n * math.cos(d0) - m * math.sin(d0))
-    return math.degrees(ra), math.degrees(dec)
 
 
 def _skymodel(path: Path, ra_deg: float, dec_deg: float) -> Path:
@@ -58,14 +49,19 @@ def _msleak(*args) -> None:
     subprocess.run(["msleak", "-q", *map(str, args)], check=True)
 
 
-def _wsclean(ms: Path, column: str, name: Path) -> None:
-    """The documented command: per-channel I, Q, U dirty images and PSFs, natural weights."""
-    subprocess.run(["wsclean", "-quiet", "-j", "1", "-name", str(name),
-                    "-size", str(NPIX), str(NPIX), "-scale", repr(PIXEL_DEG),
-                    "-pol", "IQU", "-channels-out", str(NCHAN), "-data-column", column,
-                    "-weight", "natural", "-niter", "0", "-make-psf",
-                    "-use-wgridder", "-no-small-inversion", str(ms)],
-                   check=True, capture_output=True)
+def _wsclean(ms: Path, column: str, name: Path, work: Path) -> None:
+    """The documented command: per-channel I, Q, U dirty images and PSFs, natural weights.
+    WSClean runs in, and keeps its temporary files in, ``work``."""
+    done = subprocess.run(["wsclean", "-quiet", "-j", "1", "-name", str(name),
+                           "-temp-dir", str(work),
+                           "-size", str(NPIX), str(NPIX), "-scale", repr(PIXEL_DEG),
+                           "-pol", "IQU", "-channels-out", str(NCHAN), "-data-column", column,
+                           "-weight", "natural", "-niter", "0", "-make-psf",
+                           "-use-wgridder", "-no-small-inversion", str(ms)],
+                          cwd=work, capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.fail(f"wsclean exited with status {done.returncode} on {column}:\n"
+                    f"{done.stderr}{done.stdout}", pytrace=False)
 
 
 @pytest.fixture(scope="module")
@@ -73,18 +69,20 @@ def route(tmp_path_factory) -> dict:
     """The MS, its WSClean images and the uv cubes of both routes."""
     import msleak
 
-    if shutil.which("wsclean") is None:
-        pytest.skip("wsclean is not installed (apt-get install wsclean)")
+    require_executable("wsclean", "wsclean is not installed (apt-get install wsclean)")
     d = tmp_path_factory.mktemp("wsclean")
     ms = msleak.simulate(d / "obs.ms", field="3c196", duration=8 * 120 / 3600,
                          interval=120.0, nchan=NCHAN, stations="CS00[1-7]HBA*")
+    off = lm_to_radec(math.radians(RA0), math.radians(DEC0), *OFF_LM)
     msleak.predict(ms, [_skymodel(d / "c.skymodel", RA0, DEC0),
-                        _skymodel(d / "off.skymodel", *_radec(*OFF_LM))],
+                        _skymodel(d / "off.skymodel", *(math.degrees(x) for x in off))],
                    column=["MODEL_C", "MODEL_OFF"], beam="none")
     img = d / "img"
     img.mkdir()
-    _wsclean(ms, "MODEL_C", img / "c")
-    _wsclean(ms, "MODEL_OFF", img / "off")
+    work = d / "wsclean-tmp"
+    work.mkdir()
+    _wsclean(ms, "MODEL_C", img / "c", work)
+    _wsclean(ms, "MODEL_OFF", img / "off", work)
     fov = repr(NPIX * PIXEL_DEG)
     # the glob also matches WSClean's MFS images of the whole band: they are left out
     _msleak("grid", "--image", img / "c-*-[IQU]-image.fits", "--fov", fov,
@@ -104,9 +102,8 @@ def _ms_samples(ms: Path, column: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
     with pt.table(str(ms), ack=False) as t:
         uvw, weight = t.getcol("UVW"), t.getcol("WEIGHT_SPECTRUM")[..., 0]
         xx, xy, yx, yy = np.moveaxis(t.getcol(column), -1, 0)
-    with pt.table(str(ms) + "/SPECTRAL_WINDOW", ack=False) as t:
-        freq = t.getcol("CHAN_FREQ")[0]
-    return uvw, weight, np.stack([(xx + yy) / 2, (xx - yy) / 2, (xy + yx) / 2]), freq
+    return (uvw, weight, np.stack([(xx + yy) / 2, (xx - yy) / 2, (xy + yx) / 2]),
+            channel_freqs(ms))
 
 
 def _pixel_lmn(header) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,7 +149,7 @@ def images(route) -> list[dict]:
     uvw, weight, stokes, freq = _ms_samples(route["ms"], "MODEL_OFF")
     found = []
     for chan in range(NCHAN):
-        uvw_lambda = uvw * freq[chan] / C_LIGHT
+        uvw_lambda = uvw * freq[chan] / C
         pairs = [("psf", "I", f"c-{chan:04d}-psf.fits", np.ones(len(uvw)))]
         pairs += [("off", name, f"off-{chan:04d}-{name}-image.fits", stokes[k][:, chan])
                   for k, name in enumerate("IQU")]
@@ -167,7 +164,7 @@ def images(route) -> list[dict]:
 def _source_spectrum(freq: np.ndarray) -> np.ndarray:
     """Stokes I, Q, U (3, chan) Jy of the skymodel source, as DP3 defines its spectrum."""
     i = I0 * (freq / NU0) ** ALPHA
-    dlam2 = (C_LIGHT / freq) ** 2 - (C_LIGHT / NU0) ** 2
+    dlam2 = (C / freq) ** 2 - (C / NU0) ** 2
     p = (Q0 + 1j * U0) * (i / I0) * np.exp(2j * RM * dlam2)
     return np.stack([i, p.real, p.imag])
 
@@ -272,16 +269,36 @@ def test_image_route_power_spectrum_is_visibility_route_weighted_by_psf(route):
 
 def test_glob_leaves_out_wsclean_mfs_images(tmp_path):
     """A glob matching WSClean's per-channel images and its whole-band MFS images (which
-    ``-channels-out`` also writes) gives the per-channel ones; named files are kept."""
-    from msleak.ps.fitscube import image_paths
+    ``-channels-out`` also writes) gives the per-channel ones; named files are kept. Only
+    names ending as WSClean ends an MFS image count: ``-MFS-`` elsewhere in a name (a
+    user's prefix) does not."""
+    from msleak.ps.fitscube import _is_wsclean_mfs, image_paths
 
     names = [f"obs-{c}-{s}-image.fits" for c in ("0000", "0001", "MFS") for s in "QU"]
+    names += ["obs-0000-psf.fits", "obs-MFS-psf.fits", "run-MFS-a-0000-Q-image.fits"]
     for name in names:
         (tmp_path / name).touch()
     got = image_paths(str(tmp_path / "obs-*-[QU]-image.fits"))
-    assert [Path(p).name for p in got] == sorted(n for n in names if "MFS" not in n)
+    assert [Path(p).name for p in got] == sorted(n for n in names if n.startswith("obs-")
+                                                 and "MFS" not in n and "psf" not in n)
     mfs = image_paths(str(tmp_path / "obs-MFS-*-image.fits"))
     assert [Path(p).name for p in mfs] == ["obs-MFS-Q-image.fits", "obs-MFS-U-image.fits"]
     named = image_paths([str(tmp_path / "obs-0000-Q-image.fits"),
                          str(tmp_path / "obs-MFS-Q-image.fits")])
     assert [Path(p).name for p in named] == ["obs-0000-Q-image.fits", "obs-MFS-Q-image.fits"]
+    psf = image_paths(str(tmp_path / "obs-*-psf.fits"))
+    assert [Path(p).name for p in psf] == ["obs-0000-psf.fits"]
+    # a prefix with -MFS- in it: a per-channel image, kept
+    prefixed = image_paths(str(tmp_path / "run-*-Q-image.fits"))
+    assert [Path(p).name for p in prefixed] == ["run-MFS-a-0000-Q-image.fits"]
+    # WSClean's MFS names: Stokes or correlation (XYi: its imaginary part) or none, any
+    # image type, primary-beam corrected (-pb), after -t0000 for -intervals-out
+    for name in ("obs-MFS-image.fits", "obs-MFS-Q-image.fits", "obs-MFS-psf.fits",
+                 "obs-MFS-I-residual.fits", "obs-MFS-dirty.fits", "obs-MFS-V-model.fits",
+                 "obs-MFS-XYi-image.fits", "obs-MFS-I-image-pb.fits", "obs-MFS-beam-0.fits",
+                 "obs-t0001-MFS-U-first-residual.fits", "d/x-MFS-Q-image.fits"):
+        assert _is_wsclean_mfs(name), name
+    for name in ("obs-0000-Q-image.fits", "obs-MFS-a-0000-Q-image.fits", "obs-MFS.fits",
+                 "obs-MFS-Q-image.fits.gz", "obs-MFS-Q-notes.fits", "obsMFS-Q-image.fits",
+                 "x-MFS-Q-image.fits/obs-0000-Q-image.fits"):
+        assert not _is_wsclean_mfs(name), name

@@ -13,6 +13,7 @@ import glob
 import logging
 import math
 import os
+import re
 from typing import Sequence
 
 import numpy as np
@@ -145,9 +146,17 @@ def image_paths(image: str | os.PathLike | Sequence[str | os.PathLike]) -> list[
     return paths
 
 
+#: the end of a WSClean multi-frequency-synthesis file name: ``-MFS``, an optional
+#: polarization (I, Q, U, V or a correlation such as XX, XYi) and the image type
+_WSCLEAN_MFS = re.compile(r"-MFS(?:-(?:[IQUV]|[XYRL]{2}i?))?"
+                          r"-(?:image|dirty|residual|first-residual|model|psf|beam(?:-\d+)?)"
+                          r"(?:-pb)?\.fits$")
+
+
 def _is_wsclean_mfs(path: str) -> bool:
-    """Whether ``path`` is named as WSClean names a multi-frequency-synthesis image."""
-    return "-MFS-" in os.path.basename(path)
+    """Whether ``path`` is named as WSClean names a multi-frequency-synthesis image
+    (``NAME-MFS-image.fits``, ``NAME-MFS-Q-image.fits``, ``NAME-MFS-psf.fits``, ...)."""
+    return _WSCLEAN_MFS.search(os.path.basename(path)) is not None
 
 
 def _same_pixels(info: dict, ref: dict) -> bool:
