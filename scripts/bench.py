@@ -192,8 +192,7 @@ def bench_predict_process(stage, msleak: list, ms: Path, out: Path, results: dic
     import numpy as np
     from bench_predict import grid_skymodel
 
-    sys.path.insert(0, str(ROOT / "tests"))
-    from dp3ref import dp3_available, dp3_environment
+    from dp3run import dp3_available, dp3_environment
 
     work = out / "process"
     work.mkdir(exist_ok=True)

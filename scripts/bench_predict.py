@@ -142,8 +142,7 @@ def main(argv=None) -> int:
 
     import casacore.tables as pt
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from dp3ref import dp3_available, dp3_environment
+    from dp3run import dp3_available, dp3_environment
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="msleak_bench_predict_"))
     work.mkdir(parents=True, exist_ok=True)

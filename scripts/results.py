@@ -9,6 +9,17 @@ import sys
 from pathlib import Path
 
 
+#: sections of the page that other scripts write (scripts/crosscheck), kept from here on
+KEPT_FROM = "\n## Cross-check: the study fed by DP3"
+
+
+def _kept(md: Path) -> str:
+    """The part of the existing page from :data:`KEPT_FROM` on (empty if none)."""
+    old = md.read_text() if md.exists() else ""
+    at = old.find(KEPT_FROM)
+    return old[at:] if at >= 0 else ""
+
+
 def main(outdir: str, md_path: str, fig_dir: str) -> None:
     out, md, figs = Path(outdir), Path(md_path), Path(fig_dir)
     report = (out / "report.md").read_text()
@@ -48,7 +59,7 @@ def main(outdir: str, md_path: str, fig_dir: str) -> None:
     head += [f"| {k} | {v:.1f} |" for k, v in stage_totals.items()]
     head.append("")
     body = body.replace("# Polarization leakage study\n", "", 1)
-    md.write_text("\n".join(head) + "\n" + body)
+    md.write_text("\n".join(head) + "\n" + body.rstrip("\n") + "\n" + _kept(md))
     print(f"wrote {md} and {len(list(figs.glob('*.png')))} figures in {figs}")
 
 

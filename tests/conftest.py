@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# scripts/dp3run.py runs DP3 for the tests as for scripts/bench and scripts/crosscheck
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
 #: astropy.cfg of the session: the bundled IERS and leap-second tables only (they expire;
 #: once they have, astropy would otherwise try to download new ones)

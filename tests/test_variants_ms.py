@@ -7,8 +7,6 @@ known exactly); grid against the same grid of an equivalent plain MS."""
 from __future__ import annotations
 
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -68,14 +66,15 @@ def _fill_data(ms, seed=0):
 
 
 def _dp3(args, cwd):
-    from dp3ref import dp3_available, dp3_environment
+    from dp3run import dp3_available, run_dp3
+    from peers import missing
 
     if not dp3_available():
-        pytest.skip("dp3 is not installed")
-    code = "import sys, dp3; sys.argv = ['DP3'] + sys.argv[1:]; sys.exit(dp3.entrypoint())"
-    proc = subprocess.run([sys.executable, "-c", code, *args], env=dp3_environment(1),
-                          capture_output=True, text=True, cwd=cwd, timeout=300)
-    assert proc.returncode == 0, proc.stdout[-1000:] + proc.stderr[-1000:]
+        missing("dp3", "dp3 (pip install dp3) reads and writes the MS variants")
+    try:
+        run_dp3(args, threads=1, cwd=cwd, timeout=300)
+    except RuntimeError as err:
+        raise AssertionError(str(err)) from err
 
 
 # ------------------------------------------------------------------------------ DP3
