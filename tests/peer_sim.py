@@ -224,51 +224,48 @@ def hyperbeam_tile(latitude_rad: float):
     North, so its az component is -phi and its za component theta.
     """
     import mwa_hyperbeam
-    from pyuvdata.analytic_beam import AnalyticBeam
 
-    class HyperbeamTile(AnalyticBeam):
-        basis_vector_type = "az_za"
+    def efield(self, *, az_grid, za_grid, f_grid):
+        data = self._get_empty_data_array(az_grid.shape).astype(complex)
+        tile = mwa_hyperbeam.AnalyticBeam()
+        up = za_grid < np.pi / 2                      # hyperbeam refuses the rest
+        for f in np.unique(f_grid):
+            sel = up & (f_grid == f)
+            az = np.mod(np.pi / 2 - az_grid[sel], 2 * np.pi)   # North through East
+            h = np.asarray(tile.calc_jones_array(az, za_grid[sel], float(f), [0] * 16,
+                                                 [1.0] * 16, latitude_rad, True))
+            h = h.reshape(-1, 2, 2)                   # (n, EW/NS, theta/phi)
+            data[0, 0][sel] = -h[:, 0, 1]
+            data[1, 0][sel] = h[:, 0, 0]
+            data[0, 1][sel] = -h[:, 1, 1]
+            data[1, 1][sel] = h[:, 1, 0]
+        return data
 
-        def validate(self):
-            self.feed_array = np.asarray(["x", "y"])
-            self.feed_angle = np.asarray([np.pi / 2, 0.0])
-
-        def _efield_eval(self, *, az_grid, za_grid, f_grid):
-            data = self._get_empty_data_array(az_grid.shape).astype(complex)
-            tile = mwa_hyperbeam.AnalyticBeam()
-            up = za_grid < np.pi / 2                      # hyperbeam refuses the rest
-            for f in np.unique(f_grid):
-                sel = up & (f_grid == f)
-                az = np.mod(np.pi / 2 - az_grid[sel], 2 * np.pi)   # North through East
-                h = np.asarray(tile.calc_jones_array(az, za_grid[sel], float(f), [0] * 16,
-                                                     [1.0] * 16, latitude_rad, True))
-                h = h.reshape(-1, 2, 2)                   # (n, EW/NS, theta/phi)
-                data[0, 0][sel] = -h[:, 0, 1]
-                data[1, 0][sel] = h[:, 0, 0]
-                data[0, 1][sel] = -h[:, 1, 1]
-                data[1, 1][sel] = h[:, 1, 0]
-            return data
-
-    return dataclass(kw_only=True, eq=False)(HyperbeamTile)()
+    return _xy_beam("HyperbeamTile", efield)
 
 
 def identity_beam():
     """A pyuvdata analytic E-field beam whose x feed takes the azimuth component and y the
     zenith-angle component, with gain 1 everywhere: J J^H is the identity, so unpolarized
     sources see no beam at all."""
+    def efield(self, *, az_grid, za_grid, f_grid):
+        data = self._get_empty_data_array(az_grid.shape).astype(complex)
+        data[0, 0] = 1.0
+        data[1, 1] = 1.0
+        return data
+
+    return _xy_beam("IdentityBeam", efield)
+
+
+def _xy_beam(name: str, efield):
+    """A pyuvdata analytic E-field beam in the az/za basis with feeds ``x`` (East-West,
+    ``feed_angle`` 90 deg) and ``y`` (North-South, 0) whose ``_efield_eval`` is ``efield``."""
     from pyuvdata.analytic_beam import AnalyticBeam
 
-    class IdentityBeam(AnalyticBeam):
-        basis_vector_type = "az_za"
+    def validate(self):
+        self.feed_array = np.asarray(["x", "y"])
+        self.feed_angle = np.asarray([np.pi / 2, 0.0])
 
-        def validate(self):
-            self.feed_array = np.asarray(["x", "y"])
-            self.feed_angle = np.asarray([np.pi / 2, 0.0])
-
-        def _efield_eval(self, *, az_grid, za_grid, f_grid):
-            data = self._get_empty_data_array(az_grid.shape).astype(complex)
-            data[0, 0] = 1.0
-            data[1, 1] = 1.0
-            return data
-
-    return dataclass(kw_only=True, eq=False)(IdentityBeam)()
+    cls = type(name, (AnalyticBeam,), {"__annotations__": {}, "basis_vector_type": "az_za",
+                                       "validate": validate, "_efield_eval": efield})
+    return dataclass(kw_only=True, eq=False)(cls)()
