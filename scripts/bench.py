@@ -222,7 +222,8 @@ def bench_predict_process(stage, msleak: list, ms: Path, out: Path, results: dic
         parset.write_text("\n".join([
             f"msin={ms}", "msout=.", "msout.datacolumn=DP3_PROCESS",
             "steps=[predict,applybeam]", "predict.type=predict", f"predict.sourcedb={sky}",
-            "predict.usebeammodel=true", "predict.beammode=full", "applybeam.type=applybeam",
+            "predict.usebeammodel=true", "predict.beammode=full", "predict.beamproximitylimit=0",
+            "applybeam.type=applybeam",
             "applybeam.invert=true", "applybeam.beammode=full"]) + "\n")
         dp3 = [sys.executable, "-c", "import sys, dp3; sys.argv = ['DP3'] + sys.argv[1:]; "
                "sys.exit(dp3.entrypoint())", parset]

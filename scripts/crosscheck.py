@@ -39,8 +39,10 @@ from dp3run import dp3_available, predict_cubes  # noqa: E402
 
 from msleak.study.config import FIELDS_OF_VIEW, StudyConfig  # noqa: E402
 from msleak.study.pipeline import study_steps  # noqa: E402
+from msleak.conventions import correlations_to_stokes, stokes_to_correlations  # noqa: E402,E501
+from msleak.errors import MsleakError  # noqa: E402
 from msleak.study.steps import (ProcessInvoker, Step, StepRunner,  # noqa: E402
-                                predict_precision, run_msleak)
+                                predict_precision, run_msleak, step_failed)
 
 #: first argument of the steps that run DP3 (every other step is an msleak command line)
 DP3_STEP = "dp3-predict"
@@ -69,8 +71,10 @@ class Invoker:
 
     labels_output = True
 
-    def __init__(self, workers: int = 1):
-        self.workers = ProcessInvoker(["-q"], workers=workers) if workers > 1 else None
+    def __init__(self, workers: int = 1, rerun: str = "scripts/crosscheck OUTDIR"):
+        self.rerun = rerun
+        self.workers = ProcessInvoker(["-q"], workers=workers, rerun=rerun) \
+            if workers > 1 else None
 
     def __call__(self, args: list[str], label: str | None = None) -> None:
         if args[0] == DP3_STEP:
@@ -87,8 +91,10 @@ class Invoker:
             turn_columns(ms, list(zip(names[::3], names[1::3], names[2::3])))
         elif self.workers is not None:
             self.workers(args, label=label)
-        elif run_msleak(["-q", *args]) != 0:
-            raise RuntimeError(f"`msleak {' '.join(args)}` failed; see above")
+        else:
+            rc = run_msleak(["-q", *args])
+            if rc != 0:
+                raise step_failed(args, rc, "", self.rerun)
 
     def stop(self) -> None:
         """Interrupt the running msleak steps (a DP3 run finishes its channel)."""
@@ -223,9 +229,8 @@ def _medians(leak_dir: Path) -> tuple[dict, float]:
 
 def _stokes(vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Stokes I and P = Q + iU of (row, chan, XX XY YX YY) visibilities."""
-    i = (vis[..., 0] + vis[..., 3]) / 2
-    p = (vis[..., 0] - vis[..., 3]) / 2 + 1j * (vis[..., 1] + vis[..., 2]) / 2
-    return i, p
+    iquv = correlations_to_stokes(vis)
+    return iquv[..., 0], iquv[..., 1] + 1j * iquv[..., 2]
 
 
 def _slot_turns(pa: np.ndarray, pb: np.ndarray, times: np.ndarray
@@ -249,15 +254,13 @@ def turn_columns(ms: str | Path, triples: list[tuple[str, str, str]]) -> None:
     with pt.table(str(ms), readonly=False, ack=False) as t:
         times = t.getcol("TIME")
         for ours, theirs, out in triples:
-            a = t.getcol(ours)
-            (i, pa), (_, pb) = _stokes(a), _stokes(t.getcol(theirs))
+            iquv = correlations_to_stokes(t.getcol(ours))
+            pa, (_, pb) = iquv[..., 1] + 1j * iquv[..., 2], _stokes(t.getcol(theirs))
             slot, turn = _slot_turns(pa, pb, times)
-            c, s = turn.real[slot, None], turn.imag[slot, None]
-            q, u = (a[..., 0] - a[..., 3]) / 2, (a[..., 1] + a[..., 2]) / 2
-            q, u = c * q - s * u, s * q + c * u    # Q + iU times exp(i phase)
-            v_i = (a[..., 1] - a[..., 2]) / 2      # i V
+            p = pa * turn[slot, None]              # Q + iU times exp(i phase)
+            iquv[..., 1], iquv[..., 2] = p.real, p.imag
             ensure_data_column(t, out, like=ours, double=True)
-            t.putcol(out, np.stack([i + q, u + v_i, u - v_i, i - q], axis=-1))
+            t.putcol(out, stokes_to_correlations(iquv))
 
 
 def _high_delay_power(stokes_i: np.ndarray) -> float:
@@ -434,14 +437,17 @@ def main(argv=None) -> int:
     for sub in ("sky", "figures", *cfg.fields):
         (args.outdir / sub).mkdir(parents=True, exist_ok=True)
     extra = tuple(name for name in EXTRA_ROUTES if getattr(args, name))
-    invoke = Invoker(args.workers)
+    invoke = Invoker(args.workers, rerun=f"scripts/crosscheck {args.outdir}")
     try:
         StepRunner(args.outdir, overwrite=args.overwrite).run_all(
             crosscheck_steps(cfg, args.dp3_threads, extra, args.figures), invoke,
             workers=args.workers)
+        rows = results(cfg, extra)
+    except (MsleakError, RuntimeError, ValueError) as err:
+        print(f"crosscheck: {err}", file=sys.stderr)
+        return 1
     finally:
         invoke.close()
-    rows = results(cfg, extra)
     text = table(rows)
     (args.outdir / "crosscheck.md").write_text(text)
     (args.outdir / "crosscheck.json").write_text(json.dumps(rows, indent=1) + "\n")

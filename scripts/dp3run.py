@@ -4,6 +4,8 @@ DP3 ``predict`` with ``usebeammodel=true, beammode=full`` computes
 V_pq = sum_s J_p(s) B_s J_q(s)^H exp(...) for the point sources of a makesourcedb file,
 and ``applybeam`` with ``invert=true`` (no direction: the phase centre) then applies
 J_p(s0)^-1 . J_q(s0)^-H: together they are msleak's default, centre-corrected predict.
+``beamproximitylimit=0``: each source gets its own beam, as in msleak (DP3 would otherwise
+share one beam among sources closer than 60 arcsec).
 
 A sky cube's voxels have tabulated spectra, which one makesourcedb source cannot hold, so
 :func:`predict_cubes` writes one makesourcedb file per channel and sky (the sources
@@ -91,7 +93,7 @@ def run_dp3_predict(ms: str | os.PathLike, skymodel: str | os.PathLike, column: 
     keys = [f"msin={Path(ms).resolve()}", "msout=.", f"msout.datacolumn={column}",
             f"steps=[{','.join(steps)}]", "predict.type=predict",
             f"predict.sourcedb={Path(skymodel).resolve()}", "predict.usebeammodel=true",
-            "predict.beammode=full"]
+            "predict.beammode=full", "predict.beamproximitylimit=0"]
     if centre_correction:
         keys += ["applybeam.type=applybeam", "applybeam.invert=true", "applybeam.beammode=full"]
     return run_dp3(keys, threads=threads)
@@ -102,6 +104,7 @@ def _chain(name: str, skymodel: Path, column: str, last: bool) -> tuple[list[str
     the phase centre, write ``column`` (the last sky's column is the run's msout)."""
     keys = [f"p{name}.type=predict", f"p{name}.sourcedb={skymodel}",
             f"p{name}.usebeammodel=true", f"p{name}.beammode=full",
+            f"p{name}.beamproximitylimit=0",
             f"a{name}.type=applybeam", f"a{name}.invert=true", f"a{name}.beammode=full"]
     if last:
         return [f"p{name}", f"a{name}"], keys + [f"msout.datacolumn={column}"]

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 
-#: sections of the page that other scripts write (scripts/crosscheck), kept from here on
+#: the page from here on is written by hand from scripts/crosscheck's output and kept
 KEPT_FROM = "\n## Cross-check: the study fed by DP3"
 
 

@@ -68,8 +68,12 @@ def test_dp3_route_gives_the_same_leakage(rows):
         assert 1e-3 < f["msleak"] < 10 and np.isfinite(f["dp3"])   # not between zeros
         assert f["stokes_i_rel_rms"] < TOL_STOKES_I
         assert abs(f["dp3"] / f["msleak"] - 1) < TOL_L_I
-        # two independent predicts: the columns do differ (beam model, complex64 column)
-        assert f["p_rel_rms"] > 1e-7
+        # two independent predicts: the columns do differ (beam model, complex64 column),
+        # by about the beam models' 1.2e-5 (docs/predict.md, "Accuracy"; measured 1e-5)
+        # and far less than any convention error (a conjugated phase or a missing centre
+        # correction: order 1e-2 to 1)
+        assert 1e-7 < f["p_rel_rms"] < 1e-4
+        assert f["p_turned_rel_rms"] < 1e-4   # away from the pole the bases agree
         # P_I of the cylindrical bins agrees within crosscheck.AGREE from the lowest k_par
         assert f["power_I_agrees_to_k_par"] is not None
     assert abs(field["dp3"] / field["msleak"] - 1) < TOL_L_I

@@ -13,6 +13,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 #: Markdown pages msleak writes into its output folders (paper, leakage, forecast).
 WRITTEN_PAGES = {"report.md", "stats.md", "forecast.md"}
+#: Markdown pages the scripts write into theirs (scripts/crosscheck).
+SCRIPT_PAGES = {"crosscheck.md"}
 PAGE_NAME = re.compile(r"(?<![\w{}])[\w-]+\.md\b")
 RELATIVE_PATH = re.compile(r"(?:\.\./)+[\w.-]+")
 
@@ -32,7 +34,7 @@ def test_every_page_named_is_in_the_repository():
     pages = {path.name for path in files if path.suffix == ".md"}
     offenders = [f"{path.relative_to(ROOT)}: {name}" for path in files
                  for name in sorted(set(PAGE_NAME.findall(path.read_text(errors="replace"))))
-                 if name not in pages | WRITTEN_PAGES]
+                 if name not in pages | WRITTEN_PAGES | SCRIPT_PAGES]
     assert not offenders, offenders
 
 
@@ -47,9 +49,10 @@ def test_every_relative_path_leads_to_something_in_the_repository():
 
 
 def test_the_pages_msleak_writes_are_written_by_msleak():
-    source = "\n".join(p.read_text() for p in (ROOT / "msleak").rglob("*.py"))
-    for name in WRITTEN_PAGES:
-        assert f'"{name}"' in source, name
+    for folder, names in (("msleak", WRITTEN_PAGES), ("scripts", SCRIPT_PAGES)):
+        source = "\n".join(p.read_text() for p in (ROOT / folder).rglob("*.py"))
+        for name in names:
+            assert f'"{name}"' in source, name
 
 
 def test_science_page_has_the_numbered_sections_others_cite():

@@ -65,10 +65,12 @@ def predict_precision(double: bool) -> list[str]:
     return ["--double", "--double-column"] if double else []
 
 
-def step_failed(args: Sequence[str], rc, command: str) -> MsleakError:
-    """The error of a step whose command exited with ``rc``."""
+def step_failed(args: Sequence[str], rc, command: str, rerun: str | None = None
+                ) -> MsleakError:
+    """The error of a step whose command exited with ``rc``; ``rerun`` is the command
+    line that resumes (default ``msleak COMMAND``)."""
     return MsleakError(f"`msleak {' '.join(map(str, args))}` failed (exit {rc}); fix what it "
-                       f"said above and rerun `msleak {command}` to resume")
+                       f"said above and rerun `{rerun or 'msleak ' + command}` to resume")
 
 
 def dependencies(steps: Sequence[Step]) -> dict[str, set[str]]:
@@ -224,16 +226,18 @@ class ProcessInvoker:
     whose parent has gone interrupts its step itself.
 
     ``run(args)`` is the function a worker calls, returning an exit status (a module-level
-    function; by default msleak's command line)."""
+    function; by default msleak's command line). ``rerun`` is the command line that
+    resumes the run, named in errors (default ``msleak COMMAND``)."""
 
     labels_output = True
 
     def __init__(self, global_args: Sequence[str] = (), command: str = "paper",
-                 workers: int = 2, run=None):
+                 workers: int = 2, run=None, rerun: str | None = None):
         import multiprocessing
 
         self.global_args = list(global_args)
         self.command = command
+        self.rerun = rerun or f"msleak {command}"
         self.run = run or run_msleak
         self._context = multiprocessing.get_context("spawn")
         self._idle: queue.Queue = queue.Queue()
@@ -256,13 +260,13 @@ class ProcessInvoker:
         died = False
         try:
             if self._closed:                       # no new worker once stopping
-                raise MsleakError(f"`msleak {self.command}` is stopping")
+                raise MsleakError(f"`{self.rerun}` is stopping")
             if worker is None or not worker[0].is_alive():
                 worker = self._start()
             proc, conn = worker
             with self._lock:                       # stop() signals it, or it never runs
                 if self._closed:
-                    raise MsleakError(f"`msleak {self.command}` is stopping")
+                    raise MsleakError(f"`{self.rerun}` is stopping")
                 self._busy.add(proc)
             try:
                 conn.send(([*self.global_args, *map(str, args)], f"[{label or args[0]}] "))
@@ -282,10 +286,10 @@ class ProcessInvoker:
             how = f"killed by signal {-code}" if code is not None and code < 0 else \
                 f"exit {code}"
             raise MsleakError(f"`msleak {' '.join(map(str, args))}` stopped: its worker "
-                              f"process ended ({how}; out of memory?); rerun `msleak "
-                              f"{self.command}` to resume")
+                              f"process ended ({how}; out of memory?); rerun "
+                              f"`{self.rerun}` to resume")
         if rc != 0:
-            raise step_failed(args, rc, self.command)
+            raise step_failed(args, rc, self.command, self.rerun)
 
     def stop(self) -> None:
         """Interrupt the running steps (SIGINT, as a Ctrl-C would); no step starts after."""
