@@ -1,0 +1,336 @@
+"""Image-domain gridding (IDG) degridder: visibilities of a pixel sky through per-station,
+per-time beams at a cost that does not grow with the number of sky pixels.
+
+The quantity is the one of :mod:`msleak.predict.kernels` (MS convention,
+uvw_pq = x_q - x_p)::
+
+    V_pq(t, nu) = sum_s J_p(s) B_s J_q(s)^H exp(+2 pi i (u l + v m + w (n - 1)))
+
+for a sky on a regular (l, m) grid (pixel (y, x) at l = (x - cx) dl, m = (y - cy) dl),
+computed as in van der Tol, Veenboer & Offringa (2018, A&A 616, A27):
+
+* per channel the sky, divided by the taper T, is Fourier transformed once onto a grid of
+  ``PAD`` x npix cells (cell du = 1 / (PAD npix dl) wavelengths);
+* per baseline, channel and chunk of consecutive times, the nsub x nsub cells around the
+  chunk's uv centre (u0, v0) are cut out and transformed back to an nsub x nsub
+  "subgrid image" covering the padded field (:func:`subgrid_directions`);
+* per time, that image is multiplied by T, by the phase
+  exp(+2 pi i ((u - u0) l + (v - v0) m + w (n - 1))) and by that time's beams
+  (J_p S J_q^H), and summed (a direct Fourier transform over nsub^2 pixels).
+
+This is exact when the product h(l, m) = T x phase x beams, seen as a function on the
+padded field, holds only the nsub x nsub lowest Fourier modes; the error is the part of
+its spectrum outside them, amplified by 1 / T at the sky's edge.
+
+Accuracy parameter ``epsilon`` (choice of the taper). T(l, m) = phi(2 l / P) phi(2 m / P)
+with P = PAD npix dl the padded field and phi(z) = exp(beta (sqrt(1 - z^2) - 1)) the
+"exponential of semicircle" function (the kernel of ducc0 and FINUFFT, here used in the
+image domain). Its Fourier series holds, to a level exp(-beta), the modes
+|k| <= beta / pi (the width of phi's spectrum), and the sky, inside |z| <= 1 / PAD, is
+divided by at most 1 / phi(1 / PAD) = exp(beta (1 - sqrt(1 - 1 / PAD^2))). With PAD = 2
+the error is about exp(-0.866 beta), so beta = ln(1 / epsilon) / 0.866 (:func:`taper_beta`)
+and the taper needs :func:`taper_halfwidth` = beta / pi + 1 cells on each side of the
+visibility's offset from the subgrid centre. PAD = 2 keeps the one FFT per channel small
+((2 npix)^2) and the amplification moderate (exp(0.134 beta), 8.5 at epsilon = 1e-6);
+docs/predict.md gives the measured accuracy.
+
+The rest of the nsub cells hold the offsets |u - u0|, |v - v0| of the chunk's times and
+the w-term, whose local frequency on the subgrid field is at most |w| (P / 2) / n_corner
+cycles per radian: a chunk is extended by one time while
+taper_halfwidth + max |u - u0| + |w| P^2 / (2 n_corner) <= nsub / 2 - 1 (in cells, each
+axis). A visibility that alone does not fit is refused (ValueError: raise ``nsub``).
+The beams are assumed smooth at the subgrid's sampling (nsub samples across P): their
+own spectrum widens h, which this choice does not bound.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+__all__ = ["PAD", "taper_beta", "taper_halfwidth", "subgrid_directions", "degrid"]
+
+_C = 299_792_458.0
+#: Padding of the sky grid: the uv grid has PAD x npix cells per axis.
+PAD = 2
+#: ln(1 / error) per unit beta: the taper's spectral tail exp(-beta) times the largest
+#: correction 1 / T = exp(beta (1 - sqrt(1 - 1 / PAD^2))) inside the sky.
+_DECAY = math.sqrt(1.0 - 1.0 / PAD**2)
+
+
+def taper_beta(epsilon: float) -> float:
+    """Shape parameter beta of the taper for a requested relative accuracy ``epsilon``
+    (0 < epsilon < 1)."""
+    if not 0.0 < epsilon < 1.0:
+        raise ValueError(f"epsilon must be in (0, 1), not {epsilon}")
+    return math.log(1.0 / epsilon) / _DECAY
+
+
+def taper_halfwidth(epsilon: float) -> float:
+    """Cells of the uv grid the taper's spectrum occupies on each side (beta / pi + 1)."""
+    return taper_beta(epsilon) / math.pi + 1.0
+
+
+def _phi(z: np.ndarray, beta: float) -> np.ndarray:
+    """exp(beta (sqrt(1 - z^2) - 1)) for |z| <= 1."""
+    return np.exp(beta * (np.sqrt(np.clip(1.0 - z * z, 0.0, None)) - 1.0))
+
+
+def subgrid_directions(nsub: int, npix: int, dl: float) -> np.ndarray:
+    """Directions at which the beams are given to :func:`degrid`.
+
+    Parameters
+    ----------
+    nsub : int
+        Subgrid size (even, >= 8).
+    npix : int
+        Sky size (pixels per axis).
+    dl : float
+        Sky pixel size (direction cosine, i.e. rad at the phase centre).
+
+    Returns
+    -------
+    (nsub * nsub, 3) float64
+        (l, m, n - 1) of the subgrid pixels, pixel (jy, jx) at row jy * nsub + jx with
+        l = (jx - nsub / 2) P / nsub, m = (jy - nsub / 2) P / nsub, P = PAD npix dl (the
+        padded field, twice the sky's width).
+    """
+    if nsub < 8 or nsub % 2:
+        raise ValueError(f"nsub must be even and >= 8, not {nsub}")
+    step = PAD * npix * dl / nsub
+    if (nsub / 2) * step * math.sqrt(2.0) >= 1.0:
+        raise ValueError("the padded field (twice the sky's width) must stay within "
+                         "the horizon: reduce npix * dl")
+    j = (np.arange(nsub) - nsub // 2) * step
+    m, l = np.meshgrid(j, j, indexing="ij")
+    r2 = l * l + m * m
+    nm1 = -r2 / (1.0 + np.sqrt(1.0 - r2))
+    return np.stack([l.ravel(), m.ravel(), nm1.ravel()], axis=-1)
+
+
+def _sky_grid(iquv: np.ndarray, beta: float, centre: float) -> np.ndarray:
+    """(4, G, G) sums F[k_v, k_u] = sum_(y, x) B'(y, x) exp(+2 pi i (k_u x + k_v y) / G) of
+    the brightness matrix entries (00, 01, 10, 11) divided by the taper (G = PAD npix)."""
+    npix = iquv.shape[0]
+    g = PAD * npix
+    t1 = _phi(2.0 * (np.arange(npix) - centre) / g, beta)  # z = 2 (x - cx) dl / P
+    tt = np.outer(t1, t1)
+    i, q, u, v = (iquv[..., k] / tt for k in range(4))
+    padded = np.zeros((4, g, g), dtype=np.complex128)
+    for k, b in enumerate((i + q, u + 1j * v, u - 1j * v, i - q)):
+        padded[k, :npix, :npix] = b
+    return np.fft.ifft2(padded, norm="forward")
+
+
+@nb.njit(cache=True, nogil=True)
+def _plan_chunks(uc, vc, wc, base, nsub, hw, wfac):
+    """Greedy chunks of consecutive rows (sorted by baseline, then time): a row joins the
+    current chunk while the chunk's uv spread, the taper and the w-term fit in nsub."""
+    n = uc.shape[0]
+    starts = np.empty(n + 1, dtype=np.int64)
+    k0u = np.empty(n, dtype=np.int64)
+    k0v = np.empty(n, dtype=np.int64)
+    limit = nsub / 2 - 1.0
+    nch = 0
+    r = 0
+    while r < n:
+        starts[nch] = r
+        umin = umax = uc[r]
+        vmin = vmax = vc[r]
+        wmax = abs(wc[r])
+        e = r + 1
+        while e < n and base[e] == base[r]:
+            a, b = min(umin, uc[e]), max(umax, uc[e])
+            c, d = min(vmin, vc[e]), max(vmax, vc[e])
+            ww = max(wmax, abs(wc[e]))
+            need = hw + 0.5 + ww * wfac
+            if (b - a) / 2 + need > limit or (d - c) / 2 + need > limit:
+                break
+            umin, umax, vmin, vmax, wmax = a, b, c, d, ww
+            e += 1
+        k0u[nch] = int(round((umin + umax) / 2))
+        k0v[nch] = int(round((vmin + vmax) / 2))
+        nch += 1
+        r = e
+    starts[nch] = n
+    return starts[:nch + 1], k0u[:nch], k0v[:nch]
+
+
+@nb.njit(cache=True, nogil=True)
+def _cut(grid, k0u, k0v, centre, nsub, out):
+    """out[c, e] = (-1)^(kx + ky) F_e(k0 + k) for the nsub x nsub cells of chunk c, with
+    F(k) = grid[k mod G] exp(-2 pi i (k_u + k_v) cx / G) (the sky's centre offset)."""
+    g = grid.shape[1]
+    h = nsub // 2
+    for c in range(k0u.shape[0]):
+        for iy in range(nsub):
+            kv = k0v[c] + iy - h
+            for ix in range(nsub):
+                ku = k0u[c] + ix - h
+                ph = -2.0 * math.pi * ((ku + kv) * centre / g)
+                f = complex(math.cos(ph), math.sin(ph))
+                if (ix + iy) % 2:
+                    f = -f
+                for e in range(4):
+                    out[c, e, iy, ix] = f * grid[e, kv % g, ku % g]
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _subgrid_dft(sub, starts, k0u, k0v, rows, uvw, du, lmn1, taper, jones, has_beam,
+                 p, q, tidx, c, out):
+    """out[row, c] = sum_j taper_j phase_j J_p(j) S_j J_q(j)^H for the rows of every chunk
+    (S_j: the chunk's subgrid image, phase with the offsets from the chunk's centre)."""
+    nsub = sub.shape[2]
+    npx = nsub * nsub
+    nbs, nbt, nbc = jones.shape[0], jones.shape[1], jones.shape[2]
+    jc = c if nbc > 1 else 0
+    for ch in nb.prange(k0u.shape[0]):
+        ex = np.empty(nsub, dtype=np.complex128)
+        ey = np.empty(nsub, dtype=np.complex128)
+        for r in range(starts[ch], starts[ch + 1]):
+            row = rows[r]
+            uu = uvw[row, 0] - k0u[ch] * du
+            vv = uvw[row, 1] - k0v[ch] * du
+            ww = uvw[row, 2]
+            for j in range(nsub):
+                a = 2.0 * math.pi * uu * lmn1[j, 0]
+                ex[j] = complex(math.cos(a), math.sin(a))
+                b = 2.0 * math.pi * vv * lmn1[j * nsub, 1]
+                ey[j] = complex(math.cos(b), math.sin(b))
+            jt = tidx[row] if nbt > 1 else 0
+            jp = p[row] if nbs > 1 else 0
+            jq = q[row] if nbs > 1 else 0
+            acc0 = acc1 = acc2 = acc3 = 0j
+            for j in range(npx):
+                iy = j // nsub
+                ix = j - iy * nsub
+                g = 2.0 * math.pi * ww * lmn1[j, 2]
+                f = taper[j] * ex[ix] * ey[iy] * complex(math.cos(g), math.sin(g))
+                s00 = sub[ch, 0, iy, ix]
+                s01 = sub[ch, 1, iy, ix]
+                s10 = sub[ch, 2, iy, ix]
+                s11 = sub[ch, 3, iy, ix]
+                if has_beam:
+                    a00, a01 = jones[jp, jt, jc, j, 0, 0], jones[jp, jt, jc, j, 0, 1]
+                    a10, a11 = jones[jp, jt, jc, j, 1, 0], jones[jp, jt, jc, j, 1, 1]
+                    b00 = np.conj(jones[jq, jt, jc, j, 0, 0])
+                    b01 = np.conj(jones[jq, jt, jc, j, 0, 1])
+                    b10 = np.conj(jones[jq, jt, jc, j, 1, 0])
+                    b11 = np.conj(jones[jq, jt, jc, j, 1, 1])
+                    # M = J_p S, then (M J_q^H)[a, b] = sum_d M[a, d] conj(J_q[b, d])
+                    m00 = a00 * s00 + a01 * s10
+                    m01 = a00 * s01 + a01 * s11
+                    m10 = a10 * s00 + a11 * s10
+                    m11 = a10 * s01 + a11 * s11
+                    s00 = m00 * b00 + m01 * b01
+                    s01 = m00 * b10 + m01 * b11
+                    s10 = m10 * b00 + m11 * b01
+                    s11 = m10 * b10 + m11 * b11
+                acc0 += f * s00
+                acc1 += f * s01
+                acc2 += f * s10
+                acc3 += f * s11
+            out[row, c, 0, 0] = acc0
+            out[row, c, 0, 1] = acc1
+            out[row, c, 1, 0] = acc2
+            out[row, c, 1, 1] = acc3
+
+
+def _check_jones(jones, nst: int, nt: int, nchan: int, nsub: int) -> tuple:
+    """(Jones array for the kernel, whether a beam is given); refuses a wrong shape."""
+    if jones is None:
+        return np.zeros((1, 1, 1, 1, 2, 2), dtype=np.complex128), False
+    jones = np.ascontiguousarray(jones, dtype=np.complex128)
+    if jones.ndim != 6 or jones.shape[3:] != (nsub * nsub, 2, 2) or any(
+            jones.shape[a] not in (1, n) for a, n in enumerate((nst, nt, nchan))):
+        raise ValueError(f"jones has shape {jones.shape}, expected ({nst} | 1, {nt} | 1, "
+                         f"{nchan} | 1, {nsub * nsub}, 2, 2)")
+    return jones, True
+
+
+def _subgrid_taper(nsub: int, beta: float) -> np.ndarray:
+    """(nsub^2,) taper at the subgrid pixels times (-1)^(jx + jy) / nsub^2 (the centring
+    and normalisation of the subgrid's FFT)."""
+    t1 = _phi((np.arange(nsub) - nsub // 2) * 2.0 / nsub, beta)
+    odd = np.arange(nsub) % 2
+    sign = 1 - 2 * (odd[:, None] ^ odd[None, :])
+    return (np.outer(t1, t1) * sign / nsub**2).ravel()
+
+
+def degrid(brightness: np.ndarray, dl: float, freq: np.ndarray, xyz: np.ndarray,
+           tidx: np.ndarray, p: np.ndarray, q: np.ndarray, jones: np.ndarray | None, *,
+           nsub: int = 32, epsilon: float = 1e-6, centre: float | None = None,
+           batch: int = 4096) -> np.ndarray:
+    """Visibilities of a pixel sky by image-domain gridding (see the module docstring).
+
+    Parameters
+    ----------
+    brightness : (nchan, npix, npix, 4) float
+        Stokes (I, Q, U, V) in Jy per pixel, pixel [c, y, x] at l = (x - cx) dl (East),
+        m = (y - cy) dl (North), SIN projection.
+    dl : float
+        Pixel size (direction cosine).
+    freq : (nchan,) float
+        Channel frequencies (Hz).
+    xyz : (ntime, nstation, 3) float
+        Per-station coordinates (m), uvw_pq = x_q - x_p (MS convention).
+    tidx, p, q : (nrow,) int
+        Time index into ``xyz`` and stations of every row.
+    jones : (nstation | 1, ntime | 1, nchan | 1, nsub * nsub, 2, 2) complex or None
+        Beam Jones matrices (linear feeds) at :func:`subgrid_directions` (nsub, npix, dl);
+        size-1 axes broadcast. None: no beam.
+    nsub : int
+        Subgrid size (even); larger allows longer chunks and larger |w|.
+    epsilon : float
+        Requested relative accuracy (sets the taper, module docstring).
+    centre : float, optional
+        Pixel index cx = cy of l = m = 0 (default (npix - 1) / 2: the centre of the grid,
+        CRPIX = (npix + 1) / 2 as `msleak sky` writes).
+    batch : int
+        Chunks transformed at once (memory: 64 nsub^2 bytes per chunk).
+
+    Returns
+    -------
+    (nrow, nchan, 2, 2) complex128
+        Visibility matrices [[XX, XY], [YX, YY]] of every row and channel.
+    """
+    iquv = np.asarray(brightness, dtype=np.float64)
+    freq = np.atleast_1d(np.asarray(freq, dtype=np.float64))
+    nchan, npix = iquv.shape[0], iquv.shape[1]
+    if iquv.shape != (nchan, npix, npix, 4) or freq.shape != (nchan,):
+        raise ValueError(f"brightness must be (nchan, npix, npix, 4) with nchan = "
+                         f"{freq.size} channels, not {iquv.shape}")
+    lmn1 = subgrid_directions(nsub, npix, dl)
+    xyz = np.asarray(xyz, dtype=np.float64)
+    tidx, p, q = (np.ascontiguousarray(a, dtype=np.int64) for a in (tidx, p, q))
+    jones, has_beam = _check_jones(jones, xyz.shape[1], xyz.shape[0], nchan, nsub)
+    cx = (npix - 1) / 2.0 if centre is None else float(centre)
+    beta = taper_beta(epsilon)
+    big_p = PAD * npix * dl
+    hw = taper_halfwidth(epsilon)
+    wfac = big_p * big_p / 2.0 / (1.0 + lmn1[0, 2])  # cells per wavelength of w
+    taper = _subgrid_taper(nsub, beta)
+    uvw_m = xyz[tidx, q] - xyz[tidx, p]
+    order = np.lexsort((tidx, q, p))
+    base = (p * (q.max(initial=0) + 1) + q)[order]
+    out = np.empty((tidx.size, nchan, 2, 2), dtype=np.complex128)
+    for c in range(nchan):
+        uvw = uvw_m * (freq[c] / _C)
+        cells = uvw[order] * big_p
+        worst = hw + 0.5 + np.abs(uvw[:, 2]).max(initial=0.0) * wfac
+        if worst > nsub / 2 - 1:
+            raise ValueError(f"|w| up to {np.abs(uvw[:, 2]).max():.4g} wavelengths needs "
+                             f"nsub >= {2 * math.ceil(worst + 1)}, not {nsub}")
+        grid = _sky_grid(iquv[c], beta, cx)
+        starts, k0u, k0v = _plan_chunks(cells[:, 0], cells[:, 1], uvw[order, 2], base, nsub,
+                                        hw, wfac)
+        for b0 in range(0, k0u.size, batch):
+            b1 = min(k0u.size, b0 + batch)
+            sub = np.empty((b1 - b0, 4, nsub, nsub), dtype=np.complex128)
+            _cut(grid, k0u[b0:b1], k0v[b0:b1], cx, nsub, sub)
+            sub = np.fft.fft2(sub)
+            _subgrid_dft(sub, starts[b0:b1 + 1], k0u[b0:b1], k0v[b0:b1], order, uvw,
+                         1.0 / big_p, lmn1, taper, jones, has_beam, p, q, tidx, c, out)
+    return out
