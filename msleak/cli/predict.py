@@ -10,6 +10,7 @@ from msleak.beam.base import BEAM_NAMES
 from msleak.cli._common import MemorySize, beam_model_options
 from msleak.parallel.options import parallel_options
 from msleak.predict.engine import predict as run
+from msleak.predict.gridsky import AUTO_MIN_PIXELS, METHODS
 
 __all__ = ["predict"]
 
@@ -55,6 +56,17 @@ def _split(_ctx, _param, value):
               help="Create the columns as complex128 (casacore DComplex) to keep --double's "
                    "values (implies --double). For columns msleak grid reads: DP3 and "
                    "WSClean cannot open a complex128 column.")
+@click.option("--method", type=click.Choice(METHODS), default="auto",
+              show_default=True,
+              help="direct: every pixel summed as a point source; degrid: image-domain "
+                   "gridding, at a cost independent of the pixel count (pixel skies only); "
+                   f"auto: degrid for pixel skies of at least {AUTO_MIN_PIXELS} pixels, "
+                   "direct otherwise.")
+@click.option("--epsilon", type=float, default=1e-6, show_default=True, metavar="FRACTION",
+              help="Requested relative accuracy of --method degrid.")
+@click.option("--nsub", type=int, default=None, metavar="N",
+              help="Subgrid size of --method degrid (even, >= 8) [default: 32, or what the "
+                   "largest |w| needs].")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
               help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
                    "computed at the same time (per worker process with a scheduler address).")
@@ -70,8 +82,8 @@ def _split(_ctx, _param, value):
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
 def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, centre_correction, interpolate_frequency,
-            double, double_column, memory_limit, overwrite_data, field, spw, restart, progress, scheduler,
-            workers):
+            double, double_column, method, epsilon, nsub, memory_limit, overwrite_data, field, spw,
+            restart, progress, scheduler, workers):
     """Predict the visibilities of SKY through the station beams into MS (one or more
     Measurement Sets, e.g. one per subband; each gets the same skies).
 
@@ -91,6 +103,11 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, cent
     with exactly the same RA and Dec, as in crops of one cube or cubes on the same pixel
     grid, count once); each column equals a run with its sky alone (docs/predict.md).
 
+    Pixel skies (FITS cubes) are predicted pixel by pixel (--method direct) or by
+    image-domain gridding at a cost independent of the pixel count (--method degrid, to
+    a relative accuracy --epsilon); --method auto degrids the larger ones
+    (docs/predict.md, "Image-domain gridding").
+
     \b
     Examples:
       msleak predict obs.ms --sky sky.fits --fov 9
@@ -106,7 +123,8 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, cent
                   centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,
                   double=double, double_column=double_column, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,
-                  workers=workers, progress=sys.stderr.isatty() if progress is None else progress)
+                  workers=workers, progress=sys.stderr.isatty() if progress is None else progress,
+                  method=method, epsilon=epsilon, nsub=nsub)
     for result in results:
         if result.skipped:
             click.echo(f"{result.ms}: {result.column} is complete from an identical run; "

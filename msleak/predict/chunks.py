@@ -30,6 +30,7 @@ from msleak.io.ms import iter_rows, read_used_antennas
 from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
+from msleak.predict.gridsky import DEFAULT_NSUB, degrid_visibilities, worth_degridding
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
 
 __all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time", "plan_chunks"]
@@ -199,10 +200,13 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
                 has_beam: bool) -> tuple[int, int]:
     """:func:`plan_chunks` for a group: the skies, the rows' metadata
     and the kernel's scratch memory are the fixed part."""
-    ndir_skies = sum(comp.skies[j].ndir for j in plan.active)
+    direct = [comp.skies[j] for j in plan.active if comp.skies[j].grid is None]
+    grids = [comp.skies[j].grid for j in plan.active if comp.skies[j].grid is not None]
+    ndir = comp.ndir + max([(g.nsub or DEFAULT_NSUB) ** 2 for g in grids], default=0)
     fixed = (comp.nbytes + nrows * 28
-             + kernels.scratch_bytes(nstation, comp.ndir, ndir_skies, nchan, dtype))
-    return plan_chunks(ntime, nchan, nstation, comp.ndir, rows_per_time, memory_per_task,
+             + kernels.scratch_bytes(nstation, comp.ndir, sum(s.ndir for s in direct), nchan,
+                                     dtype))
+    return plan_chunks(ntime, nchan, nstation, ndir, rows_per_time, memory_per_task,
                        dtype.itemsize, has_beam, fixed, nsky=len(plan.active))
 
 
@@ -236,11 +240,16 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
     times to ``timings``.
     """
     tick = _time.perf_counter()
+    skies = [(comp.index[k], comp.skies[k]) for k in active]
+    reach = np.concatenate([comp.lmn1] + [sky.lmn1 for _, sky in skies if sky.grid])
     xyz, off = station_coordinates(tidx, p, q, uvw, times.size, stations.size,
-                                   tolerance_m=uvw_tolerance(freq.max(), comp.lmn1))
+                                   tolerance_m=uvw_tolerance(freq.max(), reach))
     fast = np.flatnonzero(~off) if off.any() else slice(None)
     add_time(timings, "uvw", tick)
-    skies = [(comp.index[k], comp.skies[k]) for k in active]
+    rows = (tidx[fast], p[fast], q[fast])
+    use_degrid = [sky.grid is not None and not off.all()
+                  and worth_degridding(sky.grid, xyz, *rows, freq) for _, sky in skies]
+    direct = [(index, sky) for index, sky in skies if sky.grid is None]
     outs = [np.empty((tidx.size, freq.size, 4), dtype=dtype) for _ in skies]
     for c0 in range(0, freq.size, nc_chunk):
         c1 = min(freq.size, c0 + nc_chunk)
@@ -248,25 +257,53 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
         jones, left = _beam(beam_model, comp, fmeta, times, freq[c0:c1], stations,
                             centre_correction, dtype)
         tick = add_time(timings, "beam", tick)
-        if not off.all():
-            grams = kernels.predict_grams(
+        if not off.all() and direct:
+            grams = iter(kernels.predict_grams(
                 jones, xyz, comp.lmn1, freq[c0:c1],
-                [(index, sky.w[:, c0:c1], sky.sign[:, c0:c1]) for index, sky in skies],
-                dtype=dtype)
-            for out, gram in zip(outs, grams):
-                out[fast, c0:c1] = kernels.gather_rows(gram, tidx[fast], p[fast], q[fast],
-                                                       jones_left=left)
+                [(index, sky.w[:, c0:c1], sky.sign[:, c0:c1]) for index, sky in direct],
+                dtype=dtype))
+            for out, (_, sky) in zip(outs, skies):
+                if sky.grid is None:
+                    out[fast, c0:c1] = kernels.gather_rows(next(grams), tidx[fast], p[fast],
+                                                           q[fast], jones_left=left)
             del grams
         tick = add_time(timings, "kernel", tick)
+        for out, (_, sky), use in zip(outs, skies, use_degrid):
+            if sky.grid is not None and not off.all():
+                out[fast, c0:c1] = _pixel_sky(sky, use, beam_model, fmeta, times,
+                                              slice(c0, c1), freq, stations, xyz, rows,
+                                              centre_correction, dtype)
+        tick = add_time(timings, "degrid", tick)
         if off.any():
             for out, (index, sky) in zip(outs, skies):
+                sky_jones, sky_left = (jones, left) if sky.grid is None else _beam(
+                    beam_model, sky, fmeta, times, freq[c0:c1], stations, centre_correction,
+                    dtype)
                 out[off, c0:c1] = predict_rows(
-                    _directions_jones(jones, index), tidx[off], p[off],
+                    _directions_jones(sky_jones, index if sky.grid is None else
+                                      np.arange(sky.ndir)), tidx[off], p[off],
                     q[off], uvw[off], sky.lmn1, freq[c0:c1], sky.iquv[:, c0:c1],
-                    jones_left=left, dtype=dtype)
+                    jones_left=sky_left, dtype=dtype)
             add_time(timings, "per_baseline", tick)
         del jones
     return outs, int(off.sum())
+
+
+def _pixel_sky(sky, use_degrid: bool, beam_model, fmeta, times: np.ndarray,
+               channels: slice, freq: np.ndarray, stations: np.ndarray, xyz: np.ndarray,
+               rows: tuple, centre_correction: bool, dtype) -> np.ndarray:
+    """Visibilities (nrow, nchan, 4) of the antenna-based ``rows`` (tidx, p, q) for a sky
+    with a pixel grid, on ``freq[channels]``: degridded, or (a chunk where that costs more,
+    :func:`msleak.predict.gridsky.worth_degridding`) summed directly with its own beam."""
+    if use_degrid:
+        return degrid_visibilities(sky.grid, channels, beam_model, times, freq[channels],
+                                   stations, xyz, *rows, centre_correction)
+    jones, left = _beam(beam_model, sky, fmeta, times, freq[channels], stations,
+                        centre_correction, dtype)
+    grams = kernels.predict_grams(jones, xyz, sky.lmn1, freq[channels],
+                                  [(np.arange(sky.ndir), sky.w[:, channels],
+                                    sky.sign[:, channels])], dtype=dtype)
+    return kernels.gather_rows(grams[0], *rows, jones_left=left)
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

@@ -17,14 +17,16 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
 from msleak.errors import InputError
 from msleak.io.fits import cube_from_dataset
-from msleak.io.skymodel import read_sky
+from msleak.io.fits import is_fits, read_cube
+from msleak.io.skymodel import read_skymodel
+from msleak.predict.gridsky import PixelGrid, choose_method, pixel_grid
 from msleak.predict.kernels import brightness_factors, lmn_minus_one
 from msleak.sky.cube import SkyCube, crop, recentre
 from msleak.sky.sources import PointSources, sources_from_cube
@@ -46,6 +48,9 @@ class SkyComponents:
     iquv : (ndir, nchan, 4) Jy
     w : (ndir, nchan, 2, 2) complex128, sign : (ndir, nchan, 2) int8
         B = w diag(sign) w^H (linear-feed brightness matrix, see kernels)
+    grid : PixelGrid or None
+        Set when the sky is predicted by degridding (:mod:`msleak.predict.gridsky`);
+        its directions then stay out of a :class:`SkySet`'s union.
     """
 
     ra: np.ndarray
@@ -54,6 +59,7 @@ class SkyComponents:
     iquv: np.ndarray
     w: np.ndarray
     sign: np.ndarray
+    grid: PixelGrid | None = None
 
     @property
     def ndir(self) -> int:
@@ -61,7 +67,8 @@ class SkyComponents:
 
     @property
     def nbytes(self) -> int:
-        return int(self.lmn1.nbytes + self.iquv.nbytes + self.w.nbytes + self.sign.nbytes)
+        return int(self.lmn1.nbytes + self.iquv.nbytes + self.w.nbytes + self.sign.nbytes
+                   + (0 if self.grid is None else self.grid.nbytes))
 
 
 @dataclass(frozen=True)
@@ -99,22 +106,24 @@ class SkySet:
 def sky_set(skies: Sequence[SkyComponents]) -> SkySet:
     """The union of the skies' directions, exact (ra, dec) matches merged (pure function).
 
-    One sky gives its own directions in its own order (``index`` = 0..ndir-1).
+    One sky gives its own directions in its own order (``index`` = 0..ndir-1). A degridded
+    sky (``grid`` set) adds no direction and gets an empty index.
     """
     skies = tuple(skies)
-    keys = np.concatenate([np.stack([s.ra, s.dec], axis=1) for s in skies]
-                          ) if skies else np.zeros((0, 2))
+    keys = np.concatenate([np.stack([s.ra, s.dec], axis=1)[:0 if s.grid else None]
+                           for s in skies]) if skies else np.zeros((0, 2))
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")  # unique directions by first appearance
     rank = np.empty(order.size, dtype=np.int64)
     rank[order] = np.arange(order.size)
     rows_all = rank[np.asarray(inverse, dtype=np.int64).ravel()]
-    bounds = np.cumsum([0] + [s.ndir for s in skies])
+    bounds = np.cumsum([0] + [0 if s.grid else s.ndir for s in skies])
     index = tuple(rows_all[bounds[k]:bounds[k + 1]] for k in range(len(skies)))
     union = keys[first[order]]
     lmn1 = np.zeros((union.shape[0], 3))
     for sky, rows in zip(skies, index):
-        lmn1[rows] = sky.lmn1
+        if sky.grid is None:
+            lmn1[rows] = sky.lmn1
     return SkySet(ra=union[:, 0].copy(), dec=union[:, 1].copy(), lmn1=lmn1, skies=skies,
                   index=index)
 
@@ -152,23 +161,58 @@ def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: floa
 
 
 def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
-                   fov_deg: float | None = None, interpolate: bool = False) -> SkyComponents:
+                   fov_deg: float | None = None, interpolate: bool = False,
+                   method: str = "direct", epsilon: float = 1e-6,
+                   nsub: int | None = None) -> SkyComponents:
     """The sources of one sky for one field and spectral window.
 
     ``sky`` as in :func:`sky_sources`; ``freq`` the channels (Hz), ``ra0, dec0`` the phase
-    centre (rad), ``fov_deg`` the central field kept (deg).
+    centre (rad), ``fov_deg`` the central field kept (deg); ``method`` ('direct', 'degrid'
+    or 'auto'), ``epsilon`` and ``nsub`` as in :func:`msleak.predict.engine.predict`.
 
     Raises
     ------
     InputError
-        Missing or unreadable sky, frequency mismatch, FoV larger than the cube, ...
+        Missing or unreadable sky, frequency mismatch, FoV larger than the cube, degrid
+        asked for a sky that is not a pixel grid, ...
     """
-    sources = sky_sources(sky, ra0, dec0, fov_deg)
+    cube = _sky_cube(sky, ra0, dec0, fov_deg)
+    sources = sky_sources(sky, ra0, dec0, fov_deg) if cube is None else sources_from_cube(cube)
     iquv = sources.at_frequencies(np.asarray(freq, dtype=np.float64), interpolate=interpolate)
+    grid = None
+    if cube is not None and method != "direct":
+        grid = pixel_grid(sources.ra, sources.dec, iquv, cube.npix, ra0, dec0,
+                          epsilon=epsilon, nsub=nsub)
+    chosen = choose_method(method, grid, len(sources), sky_label(sky), cube is not None)
     comp = prepare_sources(sources.ra, sources.dec, iquv, ra0, dec0)
-    log.info("sky %s: %d sources, %d directions with flux", sky_label(sky), len(sources),
-             comp.ndir)
+    if chosen == "degrid":
+        comp = replace(comp, grid=replace(grid, auto=method == "auto"))
+    log.info("sky %s: %d sources, %d directions with flux, predicted by %s%s", sky_label(sky),
+             len(sources), comp.ndir, chosen,
+             f" ({grid.npix} x {grid.npix} pixels, epsilon {epsilon:g})" if comp.grid else "")
     return comp
+
+
+def _sky_cube(sky, ra0: float, dec0: float, fov_deg: float | None) -> SkyCube | None:
+    """A pixel sky re-centred on ``ra0, dec0`` (rad) and cropped to ``fov_deg``; None for
+    point sources (a makesourcedb file or :class:`PointSources`)."""
+    import xarray as xr
+
+    if isinstance(sky, (str, os.PathLike)):
+        if not os.path.exists(sky):
+            raise InputError(f"sky file {sky} does not exist")
+        if os.path.isdir(sky):
+            raise InputError(f"sky {sky} is a directory, not a FITS cube or makesourcedb "
+                             "file")
+        if not is_fits(sky):
+            return None
+        sky = read_cube(sky)
+    if isinstance(sky, xr.Dataset):
+        sky = cube_from_dataset(sky)
+    if not isinstance(sky, SkyCube):
+        return None
+    cube = recentre(sky, ra0, dec0)
+    return cube if fov_deg is None else crop(cube, fov_deg=fov_deg)
 
 
 def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):
@@ -179,16 +223,11 @@ def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):
     (:func:`msleak.make_sky`), a :class:`~msleak.sky.cube.SkyCube` or
     :class:`~msleak.sky.sources.PointSources`.
     """
-    import xarray as xr
-
-
+    cube = _sky_cube(sky, ra0, dec0, fov_deg)
+    if cube is not None:
+        return sources_from_cube(cube)
     if isinstance(sky, (str, os.PathLike)):
-        return read_sky(sky, fov_deg=fov_deg, phase_centre=(np.degrees(ra0), np.degrees(dec0)))
-    if isinstance(sky, xr.Dataset):
-        sky = cube_from_dataset(sky)
-    if isinstance(sky, SkyCube):
-        cube = recentre(sky, ra0, dec0)
-        return sources_from_cube(cube if fov_deg is None else crop(cube, fov_deg=fov_deg))
+        sky = read_skymodel(sky)
     if isinstance(sky, PointSources):
         if fov_deg is None:
             return sky

@@ -31,6 +31,7 @@ from msleak.io.products import call_record
 from msleak.parallel import open_runner
 from msleak.parallel.runner import WorkerLost, parse_memory
 from msleak.predict import chunks, runstate
+from msleak.predict.gridsky import METHODS
 from msleak.predict.plan import make_plan, make_targets
 
 __all__ = ["predict"]
@@ -50,7 +51,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
-            workers: int | None = None, progress: bool = False):
+            workers: int | None = None, progress: bool = False, method: str = "auto",
+            epsilon: float = 1e-6, nsub: int | None = None):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
     Parameters
@@ -99,6 +101,16 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         Chunks computed at the same time (default: all cores / all worker threads).
     progress : bool
         Progress bar on stderr.
+    method : {"auto", "direct", "degrid"}
+        How pixel skies are predicted: "direct" sums every pixel as a point source;
+        "degrid" uses image-domain gridding (:mod:`msleak.predict.idg`; FITS cubes, sky
+        Datasets and SkyCubes only); "auto" degrids pixel skies of at least
+        :data:`msleak.predict.gridsky.AUTO_MIN_PIXELS` pixels. Point-source skies are
+        always predicted directly (docs/predict.md, "Image-domain gridding").
+    epsilon : float
+        Requested relative accuracy of the degridder (0 < epsilon < 1).
+    nsub : int, optional
+        Degridder subgrid size (even, >= 8); default 32, or what a chunk's |w| needs.
 
     Returns
     -------
@@ -118,11 +130,12 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     options = beam_options(beam, diameter=diameter, element_model=element_model,
                            beam_file=beam_file)
     _check_options(paths, targets, double_column)
+    how = _method_options(method, epsilon, nsub)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
     plans = [make_plan(p, targets, beam=beam, centre_correction=centre_correction,
                        interpolate_frequency=interpolate_frequency, dtype=dtype,
                        field_sel=field, spw_sel=spw, beam_options=options,
-                       double_column=double_column) for p in paths]
+                       double_column=double_column, method=how) for p in paths]
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -154,6 +167,18 @@ def _check_options(paths: list[Path], targets: list, double_column: bool) -> Non
         for p in paths:
             colio.check_writable(p)
             colio.repair_interrupted(p)  # header files a killed run may have truncated
+
+
+def _method_options(method: str, epsilon: float, nsub: int | None) -> dict:
+    """The checked ``method``, ``epsilon`` and ``nsub`` of a run."""
+    if method not in METHODS:
+        raise InputError(f"unknown predict method {method!r}; use {', '.join(METHODS)}")
+    if not 0.0 < float(epsilon) < 1.0:
+        raise InputError(f"--epsilon must be in (0, 1), got {epsilon}")
+    if nsub is not None and (int(nsub) != nsub or nsub < 8 or nsub % 2):
+        raise InputError(f"--nsub must be an even integer >= 8, got {nsub}")
+    return {"method": method, "epsilon": float(epsilon),
+            "nsub": None if nsub is None else int(nsub)}
 
 
 def _check_paths(ms_list: list) -> list[Path]:

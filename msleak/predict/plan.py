@@ -225,10 +225,12 @@ def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
 
 
 def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
-              dtype, field_sel, spw_sel, beam_options: dict, double_column: bool = False
-              ) -> Plan:
+              dtype, field_sel, spw_sel, beam_options: dict, double_column: bool = False,
+              method: dict | None = None) -> Plan:
     """Read the metadata of ``ms``, select its groups and prepare the skies (no writes);
-    ``double_column``: the columns are, or are created, complex128."""
+    ``double_column``: the columns are, or are created, complex128; ``method``: the
+    keywords ``method``, ``epsilon``, ``nsub`` of :func:`msleak.predict.engine.predict`."""
+    method = dict(method or {"method": "direct"})
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
     _check_new_columns(ms, [t.column for t in targets if t.column is not None], double_column)
@@ -240,12 +242,13 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                     "stored)", ms, d, ",".join(feeds[d].names))
     _check_rows(ms, groups)
     skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
-                                  interpolate_frequency) for f, d in groups}
+                                  interpolate_frequency, method) for f, d in groups}
     token = uuid.uuid4().hex
     options = register_beam(token, beam, ms, groups, beam_options)
     common = {"beam": beam, "centre_correction": bool(centre_correction and beam != "none"),
               "interpolate_frequency": bool(interpolate_frequency),
               "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
+              **{k: v for k, v in method.items() if v is not None},
               "beam_options": dict(sorted(beam_options.items())),
               "msleak_version": __version__}
     settings = [{"sky": str(t.sky.resolve()) if isinstance(t.sky, Path) else t.label,
@@ -263,14 +266,15 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                 double_column=double_column)
 
 
-def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool) -> SkySet:
+def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool, method: dict
+                 ) -> SkySet:
     """The skies of one field and spectral window (each (sky, fov) read once)."""
     comps: dict = {}
     for t in targets:
         key = _sky_key(t)
         if key not in comps:
             comps[key] = sky_components(t.sky, freq, fmeta.ra, fmeta.dec, fov_deg=t.fov_deg,
-                                        interpolate=interpolate)
+                                        interpolate=interpolate, **method)
     return sky_set([comps[_sky_key(t)] for t in targets])
 
 

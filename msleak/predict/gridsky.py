@@ -1,0 +1,266 @@
+"""Pixel skies predicted by image-domain gridding (:mod:`msleak.predict.idg`) instead of
+the direct sum (docs/predict.md, "Image-domain gridding").
+
+A FITS cube, sky Dataset or SkyCube re-centred on the phase centre is a regular (l, m)
+grid; :func:`pixel_grid` recognises it and refers its Q, U to one smooth basis: the phase
+centre's (North, East) basis parallel-transported to every pixel
+(:func:`msleak.beam.coords.transport_angle`). The local North basis of the direct path
+turns by 360 deg around a celestial pole, so a beam given in it is not smooth across a
+field at the pole, and the degridder samples the beam only at nsub x nsub directions.
+:func:`degrid_visibilities` evaluates the beam at those directions (plus the phase centre
+for the centre correction), turns its columns into the same transported basis and folds
+J(s0)^-1 into it: J' = J(s0)^-1 J(s) R(psi), B' = R^T B R, so J' B' J'^H equals the
+direct path's J(s0)^-1 J B J^H J(s0)^-H.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from msleak.beam.base import invert_2x2
+from msleak.beam.coords import basis_rotation, transport_angle
+from msleak.errors import InputError
+from msleak.predict import idg
+from msleak.predict.kernels import lmn_minus_one
+
+__all__ = ["PixelGrid", "pixel_grid", "choose_method", "worth_degridding",
+           "degrid_visibilities",
+           "AUTO_MIN_PIXELS", "DEFAULT_NSUB", "METHODS"]
+
+log = logging.getLogger(__name__)
+
+METHODS = ("auto", "direct", "degrid")
+#: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
+AUTO_MIN_PIXELS = 6400
+#: smallest subgrid; a chunk whose |w| needs more gets the smallest size that fits
+DEFAULT_NSUB = 32
+#: largest deviation of a pixel from the fitted (l, m) grid, in pixels
+_GRID_RTOL = 1e-6
+
+
+@dataclass(frozen=True)
+class PixelGrid:
+    """A pixel sky on a regular (l, m) grid about the phase centre.
+
+    Attributes
+    ----------
+    iquv : (nchan, npix, npix, 4) float64
+        Stokes (I, Q, U, V) in Jy per pixel on the MS channels, Q, U in each pixel's local
+        (North, East) basis; pixel [c, y, x] at l = (x - centre) dl (East),
+        m = (y - centre) dl (North).
+    psi : (npix, npix) float64
+        Angle (rad, towards East) from each pixel's local North to the phase centre's
+        North parallel-transported there (:func:`msleak.beam.coords.transport_angle`).
+    dl : float
+        Pixel size (direction cosine).
+    centre : float
+        Pixel index of l = m = 0 on both axes.
+    ra0, dec0 : float
+        Phase centre (rad).
+    epsilon : float
+        Requested accuracy of the degridder.
+    nsub : int or None
+        Subgrid size; None: :data:`DEFAULT_NSUB` or what the chunk's |w| needs.
+    auto : bool
+        Chosen by ``method="auto"``: a chunk whose |w| needs a subgrid so large that the
+        direct sum is cheaper is predicted directly (:func:`worth_degridding`).
+    """
+
+    iquv: np.ndarray
+    psi: np.ndarray
+    dl: float
+    centre: float
+    ra0: float
+    dec0: float
+    epsilon: float
+    nsub: int | None
+    auto: bool = False
+
+    @property
+    def npix(self) -> int:
+        return int(self.iquv.shape[1])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.iquv.nbytes + self.psi.nbytes)
+
+    def transported(self, channels: slice) -> np.ndarray:
+        """``iquv[channels]`` with Q, U in the transported basis: B' = R^T B R,
+        R = :func:`msleak.beam.coords.basis_rotation` (psi)."""
+        iquv = np.array(self.iquv[channels])
+        rot = basis_rotation(self.psi)                                    # (y, x, 2, 2)
+        q, u = iquv[..., 1], iquv[..., 2]
+        qu = np.stack([np.stack([q, u], -1), np.stack([u, -q], -1)], -2)  # (c, y, x, 2, 2)
+        turned = np.einsum("yxba,cyxbd,yxde->cyxae", rot, qu, rot)
+        iquv[..., 1], iquv[..., 2] = turned[..., 0, 0], turned[..., 0, 1]
+        return iquv
+
+
+def _axis_fit(values: np.ndarray, axis: int) -> tuple[float, float] | None:
+    """(step, index of zero) of ``values`` (ny, nx) linear along ``axis`` and constant
+    across it, or None."""
+    n = values.shape[axis]
+    if n < 2:
+        return None
+    idx = np.arange(n, dtype=float).reshape((-1, 1) if axis == 0 else (1, -1))
+    step = float(np.mean(np.diff(values, axis=axis)))
+    if step == 0.0:
+        return None
+    zero = float(np.mean(idx - values / step))
+    if np.max(np.abs(values / step - (idx - zero))) > _GRID_RTOL:
+        return None
+    return step, zero
+
+
+def pixel_grid(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, shape: tuple[int, int],
+               ra0: float, dec0: float, *, epsilon: float, nsub: int | None
+               ) -> PixelGrid | None:
+    """The pixels of a cube as a :class:`PixelGrid`, or None when they are not a square
+    regular (l, m) grid with the same centre index on both axes.
+
+    Parameters
+    ----------
+    ra, dec : (ny * nx,) rad
+        Pixel directions, y-major (:func:`msleak.sky.sources.sources_from_cube`).
+    iquv : (ny * nx, nchan, 4) Jy
+        Stokes I, Q, U, V on the MS channels, Q and U in each pixel's local (North, East)
+        basis.
+    shape : (ny, nx)
+    ra0, dec0 : phase centre, rad
+    """
+    ny, nx = shape
+    if ny != nx:
+        return None
+    lmn1 = lmn_minus_one(ra, dec, ra0, dec0)
+    l_, m_ = lmn1[:, 0].reshape(ny, nx), lmn1[:, 1].reshape(ny, nx)
+    fit_l, fit_m = _axis_fit(l_, 1), _axis_fit(m_, 0)
+    if fit_l is None or fit_m is None or np.any(lmn1[:, 2] <= -1.0):
+        return None
+    (sx, cx), (sy, cy) = fit_l, fit_m
+    if sx < 0:
+        cx = nx - 1 - cx
+    if sy < 0:
+        cy = ny - 1 - cy
+    if not (math.isclose(abs(sx), abs(sy), rel_tol=_GRID_RTOL) and abs(cx - cy) < _GRID_RTOL):
+        return None
+    flip = (slice(None, None, -1 if sy < 0 else 1), slice(None, None, -1 if sx < 0 else 1))
+    psi = transport_angle(ra0, dec0, ra, dec).reshape(ny, nx)[flip]
+    cube = np.transpose(np.asarray(iquv, dtype=np.float64).reshape(ny, nx, -1, 4),
+                        (2, 0, 1, 3))[(slice(None),) + flip]
+    return PixelGrid(iquv=np.ascontiguousarray(cube), psi=np.ascontiguousarray(psi),
+                     dl=abs(sx), centre=0.5 * (cx + cy),
+                     ra0=float(ra0), dec0=float(dec0), epsilon=float(epsilon), nsub=nsub)
+
+
+def choose_method(method: str, grid: PixelGrid | None, npixels: int, label: str,
+                  is_cube: bool) -> str:
+    """``direct`` or ``degrid`` for one sky (refuses ``degrid`` where it cannot run)."""
+    if method not in METHODS:
+        raise InputError(f"unknown predict method {method!r}; use {', '.join(METHODS)}")
+    if method == "degrid":
+        if not is_cube:
+            raise InputError(f"--method degrid needs a pixel sky (FITS cube, sky Dataset, "
+                             f"SkyCube); {label} is a list of point sources: use --method "
+                             "direct or auto")
+        if grid is None:
+            raise InputError(f"--method degrid: the pixels of {label} are not a square "
+                             "regular SIN grid about the phase centre; use --method direct")
+        _check_field(grid, label)
+        return "degrid"
+    if method == "direct" or grid is None or npixels < AUTO_MIN_PIXELS:
+        return "direct"
+    try:
+        _check_field(grid, label)
+    except InputError:
+        return "direct"
+    return "degrid"
+
+
+def worth_degridding(grid: PixelGrid, xyz: np.ndarray, tidx: np.ndarray, p: np.ndarray,
+                     q: np.ndarray, freq: np.ndarray) -> bool:
+    """Whether degridding these rows is cheaper than the direct sum: always with
+    ``method="degrid"``; with "auto" while the pixels are at least
+    :data:`AUTO_MIN_PIXELS` (nsub / 32)^2, the measured break-even (both costs grow with
+    the visibilities, the degridder's as nsub^2, the direct sum's as the pixels)."""
+    if not grid.auto:
+        return True
+    nsub = subgrid_size(grid, _wmax(xyz, tidx, p, q, freq))
+    return grid.npix ** 2 >= AUTO_MIN_PIXELS * (nsub / DEFAULT_NSUB) ** 2
+
+
+def _wmax(xyz: np.ndarray, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
+          freq: np.ndarray) -> float:
+    """Largest |w| (wavelengths) of the rows at the highest frequency."""
+    w = xyz[tidx, q, 2] - xyz[tidx, p, 2]
+    return float(np.abs(w).max(initial=0.0)) * float(np.max(freq)) / 299_792_458.0
+
+
+def _check_field(grid: PixelGrid, label: str) -> None:
+    try:
+        idg.subgrid_directions(grid.nsub or DEFAULT_NSUB, grid.npix, grid.dl)
+    except ValueError as err:
+        raise InputError(f"--method degrid: {label}: {err} (--fov), or use --method "
+                         "direct") from None
+
+
+def subgrid_size(grid: PixelGrid, wmax: float) -> int:
+    """The subgrid size for a largest |w| of ``wmax`` wavelengths: ``grid.nsub``
+    (refused when too small) or the smallest even size >= :data:`DEFAULT_NSUB` that fits."""
+    big_p = idg.PAD * grid.npix * grid.dl
+    corner = math.sqrt(max(0.0, 1.0 - big_p * big_p / 2.0))
+    worst = idg.taper_halfwidth(grid.epsilon) + 0.5 + wmax * big_p * big_p / (2.0 * corner)
+    need = 2 * math.ceil(worst + 1.0)
+    if grid.nsub is None:
+        return max(DEFAULT_NSUB, need)
+    if grid.nsub < need:
+        raise InputError(f"--nsub {grid.nsub} is too small for |w| up to {wmax:.4g} "
+                         f"wavelengths; it needs --nsub {need} or more")
+    return grid.nsub
+
+
+def _lm_to_radec(lmn1: np.ndarray, ra0: float, dec0: float) -> tuple[np.ndarray, np.ndarray]:
+    """RA, Dec (rad) of (l, m, n - 1) about (ra0, dec0) (SIN projection)."""
+    l_, m_, n_ = lmn1[:, 0], lmn1[:, 1], lmn1[:, 2] + 1.0
+    dec = np.arcsin(np.clip(m_ * math.cos(dec0) + n_ * math.sin(dec0), -1.0, 1.0))
+    ra = ra0 + np.arctan2(l_, n_ * math.cos(dec0) - m_ * math.sin(dec0))
+    return np.mod(ra, 2 * np.pi), dec
+
+
+def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations,
+                   centre_correction: bool) -> np.ndarray | None:
+    """J(s0)^-1 J(s) R(psi) (nst, nt, nchan, nsub^2, 2, 2) at the subgrid directions in
+    the transported basis; None without a beam."""
+    if beam_model is None:
+        return None
+    lmn1 = idg.subgrid_directions(nsub, grid.npix, grid.dl)
+    ra, dec = _lm_to_radec(lmn1, grid.ra0, grid.dec0)
+    full = beam_model.jones(times, freq, np.append(ra, grid.ra0), np.append(dec, grid.dec0),
+                            stations=stations, dtype=np.complex128)
+    jones = full[..., :-1, :, :] @ basis_rotation(transport_angle(grid.ra0, grid.dec0, ra, dec))
+    if centre_correction:
+        left, singular = invert_2x2(full[..., -1, :, :])
+        if singular.any():
+            log.warning("beam at the phase centre is singular for %d station/time/channel "
+                        "samples; their corrected visibilities are zero", int(singular.sum()))
+        jones = left[..., None, :, :] @ jones
+    return jones
+
+
+def degrid_visibilities(grid: PixelGrid, channels: slice, beam_model, times: np.ndarray,
+                        freq: np.ndarray, stations: np.ndarray, xyz: np.ndarray,
+                        tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
+                        centre_correction: bool) -> np.ndarray:
+    """Visibilities (nrow, nchan, 4) XX, XY, YX, YY (linear feeds, complex128) of the rows
+    (time index ``tidx``, stations ``p``, ``q`` into ``xyz`` (ntime, nstation, 3) m) on the
+    channels ``freq`` (Hz), which are ``grid.iquv[channels]``."""
+    nsub = subgrid_size(grid, _wmax(xyz, tidx, p, q, freq))
+    jones = _subgrid_jones(grid, beam_model, nsub, times, freq, stations, centre_correction)
+    # without a beam the direct path's identity Jones is the local basis: no transport
+    sky = grid.iquv[channels] if jones is None else grid.transported(channels)
+    vis = idg.degrid(sky, grid.dl, freq, xyz, tidx, p, q, jones, nsub=nsub,
+                     epsilon=grid.epsilon, centre=grid.centre)
+    return vis.reshape(tidx.size, freq.size, 4)
