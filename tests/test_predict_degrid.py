@@ -124,20 +124,29 @@ def test_point_source_on_a_pixel_centre(mss):
 
 
 def test_auto_falls_back_to_direct_where_degrid_costs_more():
-    """``auto`` degrids a chunk only while the pixels are at least AUTO_MIN_PIXELS
-    (nsub / 32)^2: an 80 x 80 sky over 8 deg at nsub 32 (|w| = 0) but not with |w| = 500
-    wavelengths (nsub 40 or more); an explicit ``degrid`` always degrids."""
-    npix = 80
-    grid = gridsky.PixelGrid(iquv=np.zeros((1, npix, npix, 4)), psi=np.zeros((npix, npix)),
-                             dl=np.radians(8.0 / npix), centre=(npix - 1) / 2, ra0=0.0,
-                             dec0=1.0, epsilon=EPS, nsub=None, auto=True)
-    assert npix * npix == gridsky.AUTO_MIN_PIXELS
+    """``auto`` degrids a chunk only while the modelled cost favours it: one row of an
+    80 x 80 sky over 8 deg (AUTO_MIN_PIXELS, the break-even at nsub 32) with |w| = 0 (one
+    w-layer), but not two rows with w = +-500 wavelengths (five layers, four extra FFTs
+    for two rows); 1000 rows spanning the same layers on a 120 x 120 sky amortise the FFTs; an
+    explicit ``degrid`` always degrids; nsub stays 32 whatever |w|."""
+    def grid(npix):
+        return gridsky.PixelGrid(iquv=np.zeros((1, npix, npix, 4)),
+                                 psi=np.zeros((npix, npix)), dl=np.radians(8.0 / npix),
+                                 centre=(npix - 1) / 2, ra0=0.0, dec0=1.0, epsilon=EPS,
+                                 nsub=None, auto=True)
+
+    assert 80 * 80 == gridsky.AUTO_MIN_PIXELS
     xyz = np.zeros((1, 2, 3))
     tidx, p, q, freq = np.zeros(1, int), np.zeros(1, int), np.ones(1, int), np.array([150e6])
-    assert gridsky.worth_degridding(grid, xyz, tidx, p, q, freq)
+    assert gridsky.worth_degridding(grid(80), xyz, tidx, p, q, freq)
     xyz[0, 1, 2] = 500 * 299_792_458.0 / 150e6
-    assert not gridsky.worth_degridding(grid, xyz, tidx, p, q, freq)
-    assert gridsky.worth_degridding(replace(grid, auto=False), xyz, tidx, p, q, freq)
+    two = (np.zeros(2, int), np.array([0, 1]), np.array([1, 0]))
+    assert not gridsky.worth_degridding(grid(80), xyz, *two, freq)
+    assert gridsky.worth_degridding(replace(grid(80), auto=False), xyz, *two, freq)
+    assert gridsky.subgrid_size(grid(80)) == gridsky.DEFAULT_NSUB
+    many = (np.zeros(1000, int), np.arange(1000) % 2, 1 - np.arange(1000) % 2)
+    assert not gridsky.worth_degridding(grid(80), xyz, *many, freq)
+    assert gridsky.worth_degridding(grid(120), xyz, *many, freq)
 
 
 def test_auto_direct_fallback_equals_direct(mss, monkeypatch):
@@ -164,7 +173,8 @@ def test_cli_auto_logs_its_choice(mss, tmp_path):
     big, small = _fits(tmp_path, ms, "big.fits", 80), _fits(tmp_path, ms, "small.fits", 16)
     result = CliRunner().invoke(cli, ["-v", "predict", str(ms), "--sky", str(big), "--column",
                                       "M_BIG", "--sky", str(small), "--column", "M_SMALL",
-                                      "--beam", "none", "--scheduler", "sync"])
+                                      "--beam", "none", "--scheduler", "sync", "--method",
+                                      "auto"])
     assert result.exit_code == 0, (result.output, result.exception)
     lines = [ln for ln in result.stderr.splitlines() if "predicted by" in ln]
     assert len(lines) == 2, result.stderr
@@ -175,7 +185,7 @@ def test_cli_auto_logs_its_choice(mss, tmp_path):
     from ms_helpers import table
 
     for path, col in ((big, "M_BIG"), (small, "M_SMALL")):
-        alone = predict(ms, path, column=None, beam="none", scheduler="sync")
+        alone = predict(ms, path, column=None, beam="none", scheduler="sync", method="auto")
         with table(ms) as t:
             written = t.getcol(col)[alone["row"].values]
         np.testing.assert_array_equal(written, alone.values)
@@ -197,7 +207,7 @@ def test_cli_refusals(mss, tmp_path, args, words):
 
 
 def test_cli_nsub_too_small_is_refused(mss, tmp_path):
-    """An explicit --nsub that the rows' |w| does not fit is refused (nothing written)."""
+    """An explicit --nsub too small for epsilon's taper is refused (nothing written)."""
     ms = shutil.copytree(mss["3c196"], tmp_path / "w.ms")
     sky = _fits(tmp_path, ms, "sky.fits", 32)
     result = CliRunner().invoke(cli, ["predict", str(ms), "--sky", str(sky), "--method",

@@ -82,12 +82,19 @@ def test_point_source_is_the_analytic_visibility(epsilon):
     assert np.abs(vis - ref).max() <= epsilon * np.linalg.norm(b)
 
 
-def test_random_sky_with_beam_matches_direct_predict():
+@pytest.mark.parametrize("stretch", [1.0, 12.0])
+def test_random_sky_with_beam_matches_direct_predict(stretch):
     """A random full-Stokes 48 x 48 sky (10 deg) through per-station, per-time beams:
     equals msleak's direct predict (beam evaluated at every pixel) to ``epsilon`` relative
     rms, for two accuracies, and the error shrinks with epsilon. Leaving out the w-term
-    would change the visibilities by far more than either tolerance."""
+    would change the visibilities by far more than either tolerance. ``stretch`` = 12
+    stretches the array vertically to |w| of several hundred wavelengths, many w-layers
+    (without them nsub = 32 would hold |w| up to 134 wavelengths at epsilon = 1e-6)."""
     xyz, tidx, p, q = _array()
+    xyz = xyz * np.array([1.0, 1.0, stretch])
+    wmax = np.abs(xyz[tidx, q, 2] - xyz[tidx, p, 2]).max() * FREQ.max() / C
+    if stretch > 1.0:
+        assert wmax > 2.5 * idg.w_layer_width(32, NPIX, DL, 1e-6)  # |k| up to 3
     nt, nst = xyz.shape[:2]
     rng = np.random.default_rng(7)
     sky = rng.normal(size=(FREQ.size, NPIX, NPIX, 4)) * np.array([1.0, 0.3, 0.3, 0.05])
@@ -110,16 +117,18 @@ def test_random_sky_with_beam_matches_direct_predict():
     assert errors[1] < 1e-2 * errors[0]
 
 
-@pytest.mark.parametrize("epsilon", [1e-3, 1e-6])
-def test_adjoint_of_the_ducc0_gridding_of_msleak_grid(epsilon):
+@pytest.mark.parametrize("epsilon, stretch", [(1e-3, 1.0), (1e-6, 1.0), (1e-6, 15.0)])
+def test_adjoint_of_the_ducc0_gridding_of_msleak_grid(epsilon, stretch):
     """No beam, Stokes I: Re<degrid(x), v> = <x, vis2dirty(v)> with ducc0 called as
     `msleak grid` calls it (uvw = minus the MS's UVW, w-gridding, flip_w, no division by
     n; dirty[ix, iy] at l = (ix - n/2) dl, so the degridder's centre is n/2). Tolerance:
     by Cauchy-Schwarz, a degrid error of relative rms <= epsilon moves the left side by at
-    most epsilon |degrid(x)| |v|; ducc0's 1e-10 adds nothing visible."""
+    most epsilon |degrid(x)| |v|; ducc0's 1e-10 adds nothing visible. ``stretch`` = 15:
+    |w| of several hundred wavelengths, many w-layers."""
     from ducc0.wgridder import vis2dirty
 
     xyz, tidx, p, q = _array(nst=5, nt=3, seed=5)
+    xyz = xyz * np.array([1.0, 1.0, stretch])
     rng = np.random.default_rng(9)
     x = rng.normal(size=(NPIX, NPIX))  # [y, x]
     sky = np.zeros((FREQ.size, NPIX, NPIX, 4))
@@ -142,16 +151,17 @@ def test_adjoint_of_the_ducc0_gridding_of_msleak_grid(epsilon):
 
 
 def test_chunks_and_refusals():
-    """Longer chunks (larger nsub) give the same visibilities; a row whose w-term does not
-    fit in the subgrid is refused with the nsub it needs; beams must match nsub."""
+    """Longer chunks and wider w-layers (larger nsub) give the same visibilities, with |w|
+    small (one layer) and large (many); an nsub too small for epsilon's taper is refused
+    with the nsub it needs; beams must match nsub."""
     xyz, tidx, p, q = _array(nst=4, nt=6, seed=2)
     rng = np.random.default_rng(4)
     sky = rng.normal(size=(FREQ.size, NPIX, NPIX, 4))
-    a = idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, None, nsub=24, epsilon=1e-7)
-    b = idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, None, nsub=48, epsilon=1e-7)
-    assert _rel_rms(a, b) <= 2e-7  # both within 1e-7 of the exact sum
-    far = xyz * np.array([1.0, 1.0, 40.0])
-    with pytest.raises(ValueError, match="needs nsub >="):
-        idg.degrid(sky, DL, FREQ, far, tidx, p, q, None, nsub=24)
+    for far in (xyz, xyz * np.array([1.0, 1.0, 10.0])):
+        a = idg.degrid(sky, DL, FREQ, far, tidx, p, q, None, nsub=24, epsilon=1e-7)
+        b = idg.degrid(sky, DL, FREQ, far, tidx, p, q, None, nsub=48, epsilon=1e-7)
+        assert _rel_rms(a, b) <= 2e-7  # both within 1e-7 of the exact sum
+    with pytest.raises(ValueError, match="needs nsub >= 20"):
+        idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, None, nsub=16, epsilon=1e-7)
     with pytest.raises(ValueError, match="jones has shape"):
         idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, np.ones((1, 1, 1, 16, 2, 2)), nsub=24)

@@ -56,7 +56,7 @@ def _split(_ctx, _param, value):
               help="Create the columns as complex128 (casacore DComplex) to keep --double's "
                    "values (implies --double). For columns msleak grid reads: DP3 and "
                    "WSClean cannot open a complex128 column.")
-@click.option("--method", type=click.Choice(METHODS), default="auto",
+@click.option("--method", type=click.Choice(METHODS), default="direct",
               show_default=True,
               help="direct: every pixel summed as a point source; degrid: image-domain "
                    "gridding, at a cost independent of the pixel count (pixel skies only); "
@@ -65,8 +65,8 @@ def _split(_ctx, _param, value):
 @click.option("--epsilon", type=float, default=1e-6, show_default=True, metavar="FRACTION",
               help="Requested relative accuracy of --method degrid.")
 @click.option("--nsub", type=int, default=None, metavar="N",
-              help="Subgrid size of --method degrid (even, >= 8) [default: 32, or what the "
-                   "largest |w| needs].")
+              help="Subgrid size of --method degrid (even, >= 8) [default: 32; w-layers "
+                   "serve any |w|].")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
               help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
                    "computed at the same time (per worker process with a scheduler address).")
@@ -105,7 +105,8 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, cent
 
     Pixel skies (FITS cubes) are predicted pixel by pixel (--method direct) or by
     image-domain gridding at a cost independent of the pixel count (--method degrid, to
-    a relative accuracy --epsilon); --method auto degrids the larger ones
+    a relative accuracy --epsilon, which the LOFAR beam over a wide field does not yet
+    reach at the default --nsub); --method auto degrids the larger ones
     (docs/predict.md, "Image-domain gridding").
 
     \b

@@ -30,7 +30,8 @@ from msleak.io.ms import iter_rows, read_used_antennas
 from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
-from msleak.predict.gridsky import DEFAULT_NSUB, degrid_visibilities, worth_degridding
+from msleak.predict.gridsky import (DEFAULT_NSUB, DEGRID_BATCH, degrid_visibilities,
+                                   worth_degridding)
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
 
 __all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time", "plan_chunks"]
@@ -201,11 +202,16 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
     """:func:`plan_chunks` for a group: the skies, the rows' metadata
     and the kernel's scratch memory are the fixed part."""
     direct = [comp.skies[j] for j in plan.active if comp.skies[j].grid is None]
-    grids = [comp.skies[j].grid for j in plan.active if comp.skies[j].grid is not None]
-    ndir = comp.ndir + max([(g.nsub or DEFAULT_NSUB) ** 2 for g in grids], default=0)
-    fixed = (comp.nbytes + nrows * 28
-             + kernels.scratch_bytes(nstation, comp.ndir, sum(s.ndir for s in direct), nchan,
-                                     dtype))
+    pixel = [comp.skies[j] for j in plan.active if comp.skies[j].grid is not None]
+    # a pixel sky's chunk predicted directly (auto's fallback) or its rows whose UVW are not
+    # antenna-based take the beam at every pixel; a degridded chunk takes complex128 Jones
+    # at nsub^2 directions (three copies) and transforms DEGRID_BATCH subgrids at once
+    nsub = max([s.grid.nsub or DEFAULT_NSUB for s in pixel], default=0)
+    widest = max([s.ndir for s in pixel], default=0)
+    ndir = comp.ndir + max(widest, 6 * nsub ** 2)
+    fixed = (comp.nbytes + nrows * 28 + 128 * DEGRID_BATCH * nsub ** 2
+             + kernels.scratch_bytes(nstation, max(comp.ndir, widest),
+                                     sum(s.ndir for s in direct) + widest, nchan, dtype))
     return plan_chunks(ntime, nchan, nstation, ndir, rows_per_time, memory_per_task,
                        dtype.itemsize, has_beam, fixed, nsky=len(plan.active))
 

@@ -51,7 +51,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
-            workers: int | None = None, progress: bool = False, method: str = "auto",
+            workers: int | None = None, progress: bool = False, method: str = "direct",
             epsilon: float = 1e-6, nsub: int | None = None):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
@@ -102,7 +102,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     progress : bool
         Progress bar on stderr.
     method : {"auto", "direct", "degrid"}
-        How pixel skies are predicted: "direct" sums every pixel as a point source;
+        How pixel skies are predicted: "direct" (the default) sums every pixel as a point
+        source;
         "degrid" uses image-domain gridding (:mod:`msleak.predict.idg`; FITS cubes, sky
         Datasets and SkyCubes only); "auto" degrids pixel skies of at least
         :data:`msleak.predict.gridsky.AUTO_MIN_PIXELS` pixels. Point-source skies are
@@ -110,7 +111,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     epsilon : float
         Requested relative accuracy of the degridder (0 < epsilon < 1).
     nsub : int, optional
-        Degridder subgrid size (even, >= 8); default 32, or what a chunk's |w| needs.
+        Degridder subgrid size (even, >= 8); default 32 (larger only if epsilon's taper
+        needs it); any |w| is served by w-layers.
 
     Returns
     -------

@@ -29,15 +29,20 @@ from msleak.predict.kernels import lmn_minus_one
 
 __all__ = ["PixelGrid", "pixel_grid", "choose_method", "worth_degridding",
            "degrid_visibilities",
-           "AUTO_MIN_PIXELS", "DEFAULT_NSUB", "METHODS"]
+           "AUTO_MIN_PIXELS", "DEFAULT_NSUB", "DEGRID_BATCH", "METHODS"]
 
 log = logging.getLogger(__name__)
 
 METHODS = ("auto", "direct", "degrid")
 #: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
 AUTO_MIN_PIXELS = 6400
-#: smallest subgrid; a chunk whose |w| needs more gets the smallest size that fits
+#: default subgrid size (w-layers serve any |w|)
 DEFAULT_NSUB = 32
+#: subgrids transformed at once by a chunk task (memory: 128 nsub^2 bytes each, FFT included)
+DEGRID_BATCH = 512
+#: cost of one uv-grid cell of a w-layer's FFT, in pixels of one visibility of the
+#: direct sum (docs/predict.md)
+_FFT_COST = 18.0
 #: largest deviation of a pixel from the fitted (l, m) grid, in pixels
 _GRID_RTOL = 1e-6
 
@@ -64,10 +69,10 @@ class PixelGrid:
     epsilon : float
         Requested accuracy of the degridder.
     nsub : int or None
-        Subgrid size; None: :data:`DEFAULT_NSUB` or what the chunk's |w| needs.
+        Subgrid size; None: :data:`DEFAULT_NSUB` (or what epsilon's taper needs).
     auto : bool
-        Chosen by ``method="auto"``: a chunk whose |w| needs a subgrid so large that the
-        direct sum is cheaper is predicted directly (:func:`worth_degridding`).
+        Chosen by ``method="auto"``: a chunk for which the direct sum is cheaper (few
+        rows spanning many w-layers) is predicted directly (:func:`worth_degridding`).
     """
 
     iquv: np.ndarray
@@ -183,20 +188,23 @@ def choose_method(method: str, grid: PixelGrid | None, npixels: int, label: str,
 def worth_degridding(grid: PixelGrid, xyz: np.ndarray, tidx: np.ndarray, p: np.ndarray,
                      q: np.ndarray, freq: np.ndarray) -> bool:
     """Whether degridding these rows is cheaper than the direct sum: always with
-    ``method="degrid"``; with "auto" while the pixels are at least
-    :data:`AUTO_MIN_PIXELS` (nsub / 32)^2, the measured break-even (both costs grow with
-    the visibilities, the degridder's as nsub^2, the direct sum's as the pixels)."""
+    ``method="degrid"``; with "auto" while the modelled costs per channel (in units of
+    one pixel of one visibility of the direct sum) favour it::
+
+        nrow npix^2 >= nrow nsub^2 AUTO_MIN_PIXELS / 32^2 + (layers - 1) (2 npix)^2 18
+
+    The first term is the measured break-even without w-layers, the second the extra
+    FFTs of the w-layers the rows span (:func:`msleak.predict.idg.w_layer_width`), 18
+    the measured cost of an FFT cell in pixels of the direct sum (docs/predict.md)."""
     if not grid.auto:
         return True
-    nsub = subgrid_size(grid, _wmax(xyz, tidx, p, q, freq))
-    return grid.npix ** 2 >= AUTO_MIN_PIXELS * (nsub / DEFAULT_NSUB) ** 2
-
-
-def _wmax(xyz: np.ndarray, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
-          freq: np.ndarray) -> float:
-    """Largest |w| (wavelengths) of the rows at the highest frequency."""
-    w = xyz[tidx, q, 2] - xyz[tidx, p, 2]
-    return float(np.abs(w).max(initial=0.0)) * float(np.max(freq)) / 299_792_458.0
+    nsub = subgrid_size(grid)
+    dw = idg.w_layer_width(nsub, grid.npix, grid.dl, grid.epsilon)
+    w = (xyz[tidx, q, 2] - xyz[tidx, p, 2]) * float(np.max(freq)) / 299_792_458.0
+    layers = 1 if w.size == 0 else int(np.rint(w.max() / dw) - np.rint(w.min() / dw)) + 1
+    degrid = (tidx.size * nsub ** 2 * AUTO_MIN_PIXELS / DEFAULT_NSUB ** 2
+              + (layers - 1) * (idg.PAD * grid.npix) ** 2 * _FFT_COST)
+    return tidx.size * grid.npix ** 2 >= degrid
 
 
 def _check_field(grid: PixelGrid, label: str) -> None:
@@ -207,19 +215,19 @@ def _check_field(grid: PixelGrid, label: str) -> None:
                          "direct") from None
 
 
-def subgrid_size(grid: PixelGrid, wmax: float) -> int:
-    """The subgrid size for a largest |w| of ``wmax`` wavelengths: ``grid.nsub``
-    (refused when too small) or the smallest even size >= :data:`DEFAULT_NSUB` that fits."""
-    big_p = idg.PAD * grid.npix * grid.dl
-    corner = math.sqrt(max(0.0, 1.0 - big_p * big_p / 2.0))
-    worst = idg.taper_halfwidth(grid.epsilon) + 0.5 + wmax * big_p * big_p / (2.0 * corner)
-    need = 2 * math.ceil(worst + 1.0)
-    if grid.nsub is None:
-        return max(DEFAULT_NSUB, need)
-    if grid.nsub < need:
-        raise InputError(f"--nsub {grid.nsub} is too small for |w| up to {wmax:.4g} "
-                         f"wavelengths; it needs --nsub {need} or more")
-    return grid.nsub
+def subgrid_size(grid: PixelGrid) -> int:
+    """The subgrid size: ``grid.nsub`` (refused when too small for ``grid.epsilon``'s
+    taper) or the smallest even size >= :data:`DEFAULT_NSUB` that serves it; any |w| fits
+    through w-layers."""
+    nsub = grid.nsub or DEFAULT_NSUB
+    while True:
+        try:
+            idg.w_layer_width(nsub, grid.npix, grid.dl, grid.epsilon)
+            return nsub
+        except ValueError as err:
+            if grid.nsub is not None:
+                raise InputError(f"--nsub {grid.nsub}: {err}") from None
+            nsub += 2
 
 
 def _lm_to_radec(lmn1: np.ndarray, ra0: float, dec0: float) -> tuple[np.ndarray, np.ndarray]:
@@ -257,10 +265,10 @@ def degrid_visibilities(grid: PixelGrid, channels: slice, beam_model, times: np.
     """Visibilities (nrow, nchan, 4) XX, XY, YX, YY (linear feeds, complex128) of the rows
     (time index ``tidx``, stations ``p``, ``q`` into ``xyz`` (ntime, nstation, 3) m) on the
     channels ``freq`` (Hz), which are ``grid.iquv[channels]``."""
-    nsub = subgrid_size(grid, _wmax(xyz, tidx, p, q, freq))
+    nsub = subgrid_size(grid)
     jones = _subgrid_jones(grid, beam_model, nsub, times, freq, stations, centre_correction)
     # without a beam the direct path's identity Jones is the local basis: no transport
     sky = grid.iquv[channels] if jones is None else grid.transported(channels)
     vis = idg.degrid(sky, grid.dl, freq, xyz, tidx, p, q, jones, nsub=nsub,
-                     epsilon=grid.epsilon, centre=grid.centre)
+                     epsilon=grid.epsilon, centre=grid.centre, batch=DEGRID_BATCH)
     return vis.reshape(tidx.size, freq.size, 4)

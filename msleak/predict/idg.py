@@ -34,11 +34,19 @@ visibility's offset from the subgrid centre. PAD = 2 keeps the one FFT per chann
 ((2 npix)^2) and the amplification moderate (exp(0.134 beta), 8.5 at epsilon = 1e-6);
 docs/predict.md gives the measured accuracy.
 
-The rest of the nsub cells hold the offsets |u - u0|, |v - v0| of the chunk's times and
-the w-term, whose local frequency on the subgrid field is at most |w| (P / 2) / n_corner
-cycles per radian: a chunk is extended by one time while
-taper_halfwidth + max |u - u0| + |w| P^2 / (2 n_corner) <= nsub / 2 - 1 (in cells, each
-axis). A visibility that alone does not fit is refused (ValueError: raise ``nsub``).
+W-stacking (van der Tol et al. 2018, w-layers). The rest of the nsub cells hold the
+offsets |u - u0|, |v - v0| of the chunk's times and the w-term, whose local frequency on
+the subgrid field is at most |w| (P / 2) / n_corner cycles per radian, i.e.
+|w| P^2 / (2 n_corner) cells. Of the free cells, F = nsub / 2 - 1 - taper_halfwidth - 0.5
+per side, half go to the w-term: the rows of a channel are split into w-layers of width
+dw = F n_corner / (P^2 / 2) wavelengths (:func:`w_layer_width`), layer k holding the rows
+with round(w / dw) = k. Per layer and channel the sky divided by T and multiplied by
+exp(+2 pi i w_k (n - 1)), w_k = k dw, evaluated exactly at the sky pixels, is Fourier
+transformed (one FFT per layer and channel), and the subgrid holds only the residual
+w - w_k (at most F / 2 cells). When all |w| < dw / 2 there is one layer, w_k = 0. A
+chunk (rows of one baseline and one layer) is extended by one time while
+taper_halfwidth + 0.5 + max |u - u0| + max |w - w_k| P^2 / (2 n_corner) <= nsub / 2 - 1
+(in cells, each axis). ``nsub`` too small for the taper (F <= 0) is refused.
 The beams are assumed smooth at the subgrid's sampling (nsub samples across P): their
 own spectrum widens h, which this choice does not bound.
 """
@@ -46,11 +54,13 @@ own spectrum widens h, which this choice does not bound.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
-__all__ = ["PAD", "taper_beta", "taper_halfwidth", "subgrid_directions", "degrid"]
+__all__ = ["PAD", "taper_beta", "taper_halfwidth", "w_layer_width", "subgrid_directions",
+           "degrid"]
 
 _C = 299_792_458.0
 #: Padding of the sky grid: the uv grid has PAD x npix cells per axis.
@@ -71,6 +81,39 @@ def taper_beta(epsilon: float) -> float:
 def taper_halfwidth(epsilon: float) -> float:
     """Cells of the uv grid the taper's spectrum occupies on each side (beta / pi + 1)."""
     return taper_beta(epsilon) / math.pi + 1.0
+
+
+def w_layer_width(nsub: int, npix: int, dl: float, epsilon: float) -> float:
+    """Width dw (wavelengths) of the w-layers of :func:`degrid` (module docstring).
+
+    Parameters
+    ----------
+    nsub : int
+        Subgrid size.
+    npix : int
+        Sky size (pixels per axis).
+    dl : float
+        Sky pixel size (direction cosine).
+    epsilon : float
+        Requested relative accuracy.
+
+    Returns
+    -------
+    float
+        dw such that a residual |w - w_k| <= dw / 2 takes half of the subgrid's cells
+        left by the taper. Refuses (ValueError) an ``nsub`` with no cell left.
+    """
+    free = nsub / 2 - 1.0 - taper_halfwidth(epsilon) - 0.5
+    if free <= 0.0:
+        need = 2 * math.ceil(taper_halfwidth(epsilon) + 2.5)
+        raise ValueError(f"epsilon {epsilon:g} needs nsub >= {need}, not {nsub}")
+    big_p = PAD * npix * dl
+    return free / _w_cells(big_p)
+
+
+def _w_cells(big_p: float) -> float:
+    """Subgrid cells per wavelength of w: P^2 / (2 n_corner), n at the padded field's corner."""
+    return big_p * big_p / 2.0 / math.sqrt(max(1e-12, 1.0 - big_p * big_p / 2.0))
 
 
 def _phi(z: np.ndarray, beta: float) -> np.ndarray:
@@ -110,14 +153,20 @@ def subgrid_directions(nsub: int, npix: int, dl: float) -> np.ndarray:
     return np.stack([l.ravel(), m.ravel(), nm1.ravel()], axis=-1)
 
 
-def _sky_grid(iquv: np.ndarray, beta: float, centre: float) -> np.ndarray:
+def _sky_grid(iquv: np.ndarray, beta: float, centre: float, dl: float,
+              w_k: float) -> np.ndarray:
     """(4, G, G) sums F[k_v, k_u] = sum_(y, x) B'(y, x) exp(+2 pi i (k_u x + k_v y) / G) of
-    the brightness matrix entries (00, 01, 10, 11) divided by the taper (G = PAD npix)."""
+    the brightness matrix entries (00, 01, 10, 11) divided by the taper and multiplied by
+    the w-layer's phase exp(+2 pi i w_k (n - 1)) (G = PAD npix)."""
     npix = iquv.shape[0]
     g = PAD * npix
     t1 = _phi(2.0 * (np.arange(npix) - centre) / g, beta)  # z = 2 (x - cx) dl / P
-    tt = np.outer(t1, t1)
-    i, q, u, v = (iquv[..., k] / tt for k in range(4))
+    scale = 1.0 / np.outer(t1, t1)
+    if w_k != 0.0:
+        ax = (np.arange(npix) - centre) * dl
+        r2 = ax[:, None] ** 2 + ax[None, :] ** 2
+        scale = scale * np.exp(2j * np.pi * w_k * (-r2 / (1.0 + np.sqrt(1.0 - r2))))
+    i, q, u, v = (iquv[..., k] * scale for k in range(4))
     padded = np.zeros((4, g, g), dtype=np.complex128)
     for k, b in enumerate((i + q, u + 1j * v, u - 1j * v, i - q)):
         padded[k, :npix, :npix] = b
@@ -282,7 +331,7 @@ def degrid(brightness: np.ndarray, dl: float, freq: np.ndarray, xyz: np.ndarray,
         Beam Jones matrices (linear feeds) at :func:`subgrid_directions` (nsub, npix, dl);
         size-1 axes broadcast. None: no beam.
     nsub : int
-        Subgrid size (even); larger allows longer chunks and larger |w|.
+        Subgrid size (even); larger allows longer chunks and wider w-layers (fewer FFTs).
     epsilon : float
         Requested relative accuracy (sets the taper, module docstring).
     centre : float, optional
@@ -307,30 +356,59 @@ def degrid(brightness: np.ndarray, dl: float, freq: np.ndarray, xyz: np.ndarray,
     tidx, p, q = (np.ascontiguousarray(a, dtype=np.int64) for a in (tidx, p, q))
     jones, has_beam = _check_jones(jones, xyz.shape[1], xyz.shape[0], nchan, nsub)
     cx = (npix - 1) / 2.0 if centre is None else float(centre)
+    dw = w_layer_width(nsub, npix, dl, epsilon)
     beta = taper_beta(epsilon)
-    big_p = PAD * npix * dl
-    hw = taper_halfwidth(epsilon)
-    wfac = big_p * big_p / 2.0 / (1.0 + lmn1[0, 2])  # cells per wavelength of w
-    taper = _subgrid_taper(nsub, beta)
+    kernel = _Kernel(beta=beta, hw=taper_halfwidth(epsilon), big_p=PAD * npix * dl,
+                     lmn1=lmn1, taper=_subgrid_taper(nsub, beta), jones=jones,
+                     has_beam=has_beam, p=p, q=q, tidx=tidx, nsub=nsub, batch=batch)
     uvw_m = xyz[tidx, q] - xyz[tidx, p]
-    order = np.lexsort((tidx, q, p))
-    base = (p * (q.max(initial=0) + 1) + q)[order]
+    base = p * (q.max(initial=0) + 1) + q
     out = np.empty((tidx.size, nchan, 2, 2), dtype=np.complex128)
     for c in range(nchan):
         uvw = uvw_m * (freq[c] / _C)
-        cells = uvw[order] * big_p
-        worst = hw + 0.5 + np.abs(uvw[:, 2]).max(initial=0.0) * wfac
-        if worst > nsub / 2 - 1:
-            raise ValueError(f"|w| up to {np.abs(uvw[:, 2]).max():.4g} wavelengths needs "
-                             f"nsub >= {2 * math.ceil(worst + 1)}, not {nsub}")
-        grid = _sky_grid(iquv[c], beta, cx)
-        starts, k0u, k0v = _plan_chunks(cells[:, 0], cells[:, 1], uvw[order, 2], base, nsub,
-                                        hw, wfac)
-        for b0 in range(0, k0u.size, batch):
-            b1 = min(k0u.size, b0 + batch)
+        layer = np.rint(uvw[:, 2] / dw).astype(np.int64)
+        uvw[:, 2] -= layer * dw  # the residual w - w_k the subgrids hold
+        order = np.lexsort((tidx, base, layer))
+        bounds = np.flatnonzero(np.diff(layer[order])) + 1
+        for rows in np.split(order, bounds):
+            if rows.size:
+                grid = _sky_grid(iquv[c], kernel.beta, cx, dl, layer[rows[0]] * dw)
+                kernel.run(grid, uvw, rows, base[rows], cx, c, out)
+    return out
+
+
+@dataclass
+class _Kernel:
+    """The constants of one :func:`degrid` call; :meth:`run` chunks, cuts and sums the
+    subgrids of one w-layer of one channel."""
+
+    beta: float
+    hw: float
+    big_p: float
+    lmn1: np.ndarray
+    taper: np.ndarray
+    jones: np.ndarray
+    has_beam: bool
+    p: np.ndarray
+    q: np.ndarray
+    tidx: np.ndarray
+    nsub: int
+    batch: int
+
+    def run(self, grid: np.ndarray, uvw: np.ndarray, rows: np.ndarray, base: np.ndarray,
+            cx: float, c: int, out: np.ndarray) -> None:
+        """Fill out[rows, c] from the layer's uv ``grid``; ``uvw`` (wavelengths) holds the
+        residual w of every row, ``rows`` are sorted by baseline (``base``), then time."""
+        nsub, big_p = self.nsub, self.big_p
+        wfac = _w_cells(big_p)
+        cells = uvw[rows] * big_p
+        starts, k0u, k0v = _plan_chunks(cells[:, 0], cells[:, 1], uvw[rows, 2], base, nsub,
+                                        self.hw, wfac)
+        for b0 in range(0, k0u.size, self.batch):
+            b1 = min(k0u.size, b0 + self.batch)
             sub = np.empty((b1 - b0, 4, nsub, nsub), dtype=np.complex128)
             _cut(grid, k0u[b0:b1], k0v[b0:b1], cx, nsub, sub)
             sub = np.fft.fft2(sub)
-            _subgrid_dft(sub, starts[b0:b1 + 1], k0u[b0:b1], k0v[b0:b1], order, uvw,
-                         1.0 / big_p, lmn1, taper, jones, has_beam, p, q, tidx, c, out)
-    return out
+            _subgrid_dft(sub, starts[b0:b1 + 1], k0u[b0:b1], k0v[b0:b1], rows, uvw,
+                         1.0 / big_p, self.lmn1, self.taper, self.jones, self.has_beam,
+                         self.p, self.q, self.tidx, c, out)
