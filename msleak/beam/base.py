@@ -69,6 +69,17 @@ def invert_2x2(j: np.ndarray, *, rcond: float = 1e-12) -> tuple[np.ndarray, np.n
     return inv, singular
 
 
+def centre_inverse(centre: np.ndarray) -> np.ndarray:
+    """J(s0)^-1 (..., 2, 2) complex128 of the beams at the phase centre for the centre
+    correction; singular samples give zeros (their corrected visibilities are zero) and
+    one warning counting them."""
+    left, singular = invert_2x2(np.asarray(centre).astype(np.complex128))
+    if singular.any():
+        log.warning("beam at the phase centre is singular for %d station/time/channel "
+                    "samples; their corrected visibilities are zero", int(singular.sum()))
+    return left
+
+
 class JonesFactors(NamedTuple):
     """Beam Jones matrices as a scalar per station times a matrix per element group:
     ``J[p, t, c, k] = scalar[p, t, c, k] * element[group[p], t, c, k]``.

@@ -60,6 +60,16 @@ def unit_to_radec(v) -> tuple[np.ndarray, np.ndarray]:
     return ra, dec
 
 
+def lm_to_radec(l, m, ra0: float, dec0: float) -> tuple[np.ndarray, np.ndarray]:
+    """(ra, dec) in rad, ra in [0, 2 pi), of direction cosines (l, m) (East, North) about
+    (ra0, dec0) in rad: the inverse of the SIN projection."""
+    l, m = np.asarray(l, dtype=float), np.asarray(m, dtype=float)
+    n = np.sqrt(np.clip(1 - l ** 2 - m ** 2, 0, None))
+    dec = np.arcsin(np.clip(m * np.cos(dec0) + n * np.sin(dec0), -1, 1))
+    ra = np.mod(ra0 + np.arctan2(l, n * np.cos(dec0) - m * np.sin(dec0)), 2 * np.pi)
+    return ra, dec
+
+
 def clip_pole(dec, eps: float = POLE_EPS_RAD) -> np.ndarray:
     """Declinations (rad) with the poles replaced by +-(pi/2 - eps) (see module notes)."""
     return np.clip(np.asarray(dec, dtype=float), -np.pi / 2 + eps, np.pi / 2 - eps)

@@ -20,7 +20,7 @@ import xarray as xr
 
 from msleak.beam import beam_options, load_beam
 from msleak.beam.base import BeamModel
-from msleak.beam.coords import basis_rotation, transport_angle
+from msleak.beam.coords import basis_rotation, lm_to_radec, transport_angle
 from msleak.beam.mueller import (
     jones_to_mueller,
     leakage,
@@ -81,10 +81,7 @@ def sin_grid(ra0: float, dec0: float, fov_deg: float, npix: int):
         raise InputError(f"need at least 2 pixels per side, got {npix}")
     half = np.sin(np.radians(fov_deg / 2))
     lin = np.linspace(-half, half, npix)
-    ll, mm = np.meshgrid(lin, lin)
-    nn = np.sqrt(np.clip(1 - ll ** 2 - mm ** 2, 0, None))
-    dec = np.arcsin(np.clip(mm * np.cos(dec0) + nn * np.sin(dec0), -1, 1))
-    ra = np.mod(ra0 + np.arctan2(ll, nn * np.cos(dec0) - mm * np.sin(dec0)), 2 * np.pi)
+    ra, dec = lm_to_radec(*np.meshgrid(lin, lin), ra0, dec0)
     return np.degrees(lin), np.degrees(lin), ra, dec
 
 

@@ -23,7 +23,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from msleak.beam import load_beam
-from msleak.beam.base import JonesFactors, invert_2x2
+from msleak.beam.base import JonesFactors, centre_inverse
 from msleak.conventions import CorrelationLayout
 from msleak.io import columns as colio
 from msleak.io.ms import iter_rows, read_used_antennas
@@ -329,13 +329,7 @@ def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,
         jones = JonesFactors(factors.scalar[..., :-1], factors.element[..., :-1, :, :],
                              factors.group)
         centre = factors.full(-1)
-    left = None
-    if centre_correction:
-        left, singular = invert_2x2(centre.astype(np.complex128))
-        if singular.any():
-            log.warning("beam at the phase centre is singular for %d station/time/channel "
-                        "samples; their corrected visibilities are zero", int(singular.sum()))
-    return jones, left
+    return jones, centre_inverse(centre) if centre_correction else None
 
 
 def _directions_jones(jones, index: np.ndarray) -> np.ndarray | None:

@@ -177,7 +177,8 @@ def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
         asked for a sky that is not a pixel grid, ...
     """
     cube = _sky_cube(sky, ra0, dec0, fov_deg)
-    sources = sky_sources(sky, ra0, dec0, fov_deg) if cube is None else sources_from_cube(cube)
+    sources = _point_sources(sky, ra0, dec0, fov_deg) if cube is None else \
+        sources_from_cube(cube)
     iquv = sources.at_frequencies(np.asarray(freq, dtype=np.float64), interpolate=interpolate)
     grid = None
     if cube is not None and method != "direct":
@@ -224,8 +225,11 @@ def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):
     :class:`~msleak.sky.sources.PointSources`.
     """
     cube = _sky_cube(sky, ra0, dec0, fov_deg)
-    if cube is not None:
-        return sources_from_cube(cube)
+    return _point_sources(sky, ra0, dec0, fov_deg) if cube is None else sources_from_cube(cube)
+
+
+def _point_sources(sky, ra0: float, dec0: float, fov_deg: float | None) -> PointSources:
+    """:func:`sky_sources` of a sky that is not a pixel sky (:func:`_sky_cube` gave None)."""
     if isinstance(sky, (str, os.PathLike)):
         sky = read_skymodel(sky)
     if isinstance(sky, PointSources):

@@ -15,14 +15,14 @@ direct path's J(s0)^-1 J B J^H J(s0)^-H.
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from msleak.beam.base import invert_2x2
-from msleak.beam.coords import basis_rotation, transport_angle
+from msleak.beam.base import centre_inverse
+from msleak.beam.coords import basis_rotation, lm_to_radec, transport_angle
+from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 from msleak.predict import idg
 from msleak.predict.kernels import lmn_minus_one
@@ -30,8 +30,6 @@ from msleak.predict.kernels import lmn_minus_one
 __all__ = ["PixelGrid", "pixel_grid", "choose_method", "worth_degridding",
            "degrid_visibilities",
            "AUTO_MIN_PIXELS", "DEFAULT_NSUB", "DEGRID_BATCH", "METHODS"]
-
-log = logging.getLogger(__name__)
 
 METHODS = ("auto", "direct", "degrid")
 #: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
@@ -164,8 +162,6 @@ def pixel_grid(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, shape: tuple[i
 def choose_method(method: str, grid: PixelGrid | None, npixels: int, label: str,
                   is_cube: bool) -> str:
     """``direct`` or ``degrid`` for one sky (refuses ``degrid`` where it cannot run)."""
-    if method not in METHODS:
-        raise InputError(f"unknown predict method {method!r}; use {', '.join(METHODS)}")
     if method == "degrid":
         if not is_cube:
             raise InputError(f"--method degrid needs a pixel sky (FITS cube, sky Dataset, "
@@ -200,7 +196,7 @@ def worth_degridding(grid: PixelGrid, xyz: np.ndarray, tidx: np.ndarray, p: np.n
         return True
     nsub = subgrid_size(grid)
     dw = idg.w_layer_width(nsub, grid.npix, grid.dl, grid.epsilon)
-    w = (xyz[tidx, q, 2] - xyz[tidx, p, 2]) * float(np.max(freq)) / 299_792_458.0
+    w = (xyz[tidx, q, 2] - xyz[tidx, p, 2]) * float(np.max(freq)) / SPEED_OF_LIGHT
     layers = 1 if w.size == 0 else int(np.rint(w.max() / dw) - np.rint(w.min() / dw)) + 1
     degrid = (tidx.size * nsub ** 2 * AUTO_MIN_PIXELS / DEFAULT_NSUB ** 2
               + (layers - 1) * (idg.PAD * grid.npix) ** 2 * _FFT_COST)
@@ -230,14 +226,6 @@ def subgrid_size(grid: PixelGrid) -> int:
             nsub += 2
 
 
-def _lm_to_radec(lmn1: np.ndarray, ra0: float, dec0: float) -> tuple[np.ndarray, np.ndarray]:
-    """RA, Dec (rad) of (l, m, n - 1) about (ra0, dec0) (SIN projection)."""
-    l_, m_, n_ = lmn1[:, 0], lmn1[:, 1], lmn1[:, 2] + 1.0
-    dec = np.arcsin(np.clip(m_ * math.cos(dec0) + n_ * math.sin(dec0), -1.0, 1.0))
-    ra = ra0 + np.arctan2(l_, n_ * math.cos(dec0) - m_ * math.sin(dec0))
-    return np.mod(ra, 2 * np.pi), dec
-
-
 def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations,
                    centre_correction: bool) -> np.ndarray | None:
     """J(s0)^-1 J(s) R(psi) (nst, nt, nchan, nsub^2, 2, 2) at the subgrid directions in
@@ -245,16 +233,12 @@ def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations
     if beam_model is None:
         return None
     lmn1 = idg.subgrid_directions(nsub, grid.npix, grid.dl)
-    ra, dec = _lm_to_radec(lmn1, grid.ra0, grid.dec0)
+    ra, dec = lm_to_radec(lmn1[:, 0], lmn1[:, 1], grid.ra0, grid.dec0)
     full = beam_model.jones(times, freq, np.append(ra, grid.ra0), np.append(dec, grid.dec0),
                             stations=stations, dtype=np.complex128)
     jones = full[..., :-1, :, :] @ basis_rotation(transport_angle(grid.ra0, grid.dec0, ra, dec))
     if centre_correction:
-        left, singular = invert_2x2(full[..., -1, :, :])
-        if singular.any():
-            log.warning("beam at the phase centre is singular for %d station/time/channel "
-                        "samples; their corrected visibilities are zero", int(singular.sum()))
-        jones = left[..., None, :, :] @ jones
+        jones = centre_inverse(full[..., -1, :, :])[..., None, :, :] @ jones
     return jones
 
 

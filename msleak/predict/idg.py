@@ -59,10 +59,11 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from msleak.constants import SPEED_OF_LIGHT
+
 __all__ = ["PAD", "taper_beta", "taper_halfwidth", "w_layer_width", "subgrid_directions",
            "degrid"]
 
-_C = 299_792_458.0
 #: Padding of the sky grid: the uv grid has PAD x npix cells per axis.
 PAD = 2
 #: ln(1 / error) per unit beta: the taper's spectral tail exp(-beta) times the largest
@@ -365,7 +366,7 @@ def degrid(brightness: np.ndarray, dl: float, freq: np.ndarray, xyz: np.ndarray,
     base = p * (q.max(initial=0) + 1) + q
     out = np.empty((tidx.size, nchan, 2, 2), dtype=np.complex128)
     for c in range(nchan):
-        uvw = uvw_m * (freq[c] / _C)
+        uvw = uvw_m * (freq[c] / SPEED_OF_LIGHT)
         layer = np.rint(uvw[:, 2] / dw).astype(np.int64)
         uvw[:, 2] -= layer * dw  # the residual w - w_k the subgrids hold
         order = np.lexsort((tidx, base, layer))
