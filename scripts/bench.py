@@ -8,6 +8,8 @@ each accepting ``--outdir DIR --quick`` and printing one JSON object as its last
 the peers:
 EveryBeam direct (beam), DP3 predict + applybeam (predict), ps_eor (PS of an image cube),
 and the scaling of predict and grid with sources, stations, times and channels.
+scripts/bench_degrid.py holds the stage group ``degrid`` (``msleak predict --method degrid``
+against the direct predict, and on skies of up to 512 x 512 pixels).
 
 Paper scale (docs/science.md section 2-3): NCP, 13 h of 120 s slots, the 48 LOFAR HBA core fields, 50
 channels of 195.3125 kHz from 150 MHz, a 50 x 50-pixel Q/U sky cube over 15 deg (2500
@@ -57,13 +59,14 @@ def _tree_pss_kib(pid: int) -> int:
     return total
 
 
-def timed(cmd: list, cwd: Path, env: dict | None = None) -> dict:
+def timed(cmd: list, cwd: Path, env: dict | None = None, keep: str | None = None) -> dict:
     """Run ``cmd`` under /usr/bin/time -v; wall seconds, peak resident memory (MiB), CPU
     seconds (user + system, a check on wall times taken while other jobs shared the
     machine), exit code, output. The peak is the larger of the largest single process's
     (time -v, RSS) and the whole process tree's proportional set size sampled every
     0.2 s, so commands that run steps in worker processes (msleak paper --workers) count
-    them all."""
+    them all. ``keep``: a regular expression; the stderr lines it matches are returned
+    as ``log`` (each once, in order)."""
     t0 = time.perf_counter()
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         proc = subprocess.Popen(["/usr/bin/time", "-v", *map(str, cmd)], cwd=cwd, env=env,
@@ -80,13 +83,23 @@ def timed(cmd: list, cwd: Path, env: dict | None = None) -> dict:
     cpu = [float(m) for m in re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)",
                                         stderr)]
     largest_kib = int(rss.group(1)) if rss else 0
+    log = {"log": grep_log(stderr, keep)} if keep else {}
     return {"command": " ".join(map(str, cmd)).replace(str(ROOT) + "/", ""),
             "wall_s": round(wall, 2),
             "peak_rss_mib": round(max(largest_kib, tree_kib) / 1024, 1) if rss else None,
             "peak_largest_process_mib": round(largest_kib / 1024, 1) if rss else None,
             "cpu_s": round(sum(cpu), 2) if cpu else None,
             "exit": proc.returncode, "stdout": stdout[-4000:],
-            "stderr": stderr[-2000:] if proc.returncode else ""}
+            "stderr": stderr[-2000:] if proc.returncode else "", **log}
+
+
+def grep_log(stderr: str, pattern: str) -> list[str]:
+    """The distinct matches of ``pattern`` in ``stderr``, in order."""
+    seen: list[str] = []
+    for m in re.finditer(pattern, stderr):
+        if m.group(0) not in seen:
+            seen.append(m.group(0))
+    return seen
 
 
 def last_json(text: str):
@@ -263,10 +276,13 @@ def main() -> int:
     ap.add_argument("--only", default="", help="comma-separated stages or groups to run "
                     "(simulate, sky, beam, predict, grid, transform, ps, leakage, peers, "
                     "beam_peer, predict_peer, ps_peer, schedulers, predict_schedulers, "
-                    "grid_schedulers, scaling, predict_process, multisky, study)")
+                    "grid_schedulers, scaling, predict_process, multisky, study, degrid)")
     ap.add_argument("--process-hours", type=float, default=None,
                     help="predict_process on a fresh NCP MS of this many hours instead of "
                          "the paper MS (DP3 takes about 5 s per slot there: 35 min for 13 h)")
+    ap.add_argument("--degrid-hours", type=float, default=None,
+                    help="degrid on a fresh NCP MS of this many hours instead of the paper "
+                         "MS (--quick: of 7 stations; default 0.5 h)")
     ap.add_argument("--outdir", default=str(ROOT / "bench-output"))
     ap.add_argument("--doc", default=str(ROOT / "docs" / "benchmarks.md"),
                     help="Markdown report ('' for none)")
@@ -280,11 +296,11 @@ def main() -> int:
                            "platform": platform.platform(), "load_avg_start": os.getloadavg()},
                "date": time.strftime("%Y-%m-%d %H:%M"), "quick": args.quick,
                "stages": {}, "peers": {}, "schedulers": {}, "multisky": {}, "study": {},
-               "notes": []}
+               "degrid": {}, "notes": []}
     previous = out / "bench.json"
     if only and previous.exists():  # a partial rerun updates the last full results
         old = json.loads(previous.read_text())
-        for group in ("stages", "peers", "schedulers", "multisky", "study"):
+        for group in ("stages", "peers", "schedulers", "multisky", "study", "degrid"):
             results[group] = old.get(group, {})
         results["notes"] = old.get("notes", [])
         results["notes"].append(
@@ -299,9 +315,9 @@ def main() -> int:
     def want(*names):
         return not only or bool(only & set(names))
 
-    def stage(name, cmd, group=None, env=None):
+    def stage(name, cmd, group=None, env=None, keep=None):
         print(f"bench: {name} ...", file=sys.stderr, flush=True)
-        r = timed(cmd, out, env)
+        r = timed(cmd, out, env, keep)
         (stages if group is None else results[group])[name] = r
         print(f"bench: {name}: {r['wall_s']:.1f} s, peak {r['peak_rss_mib']} MiB"
               + (f", FAILED exit {r['exit']}: {r['stderr'][-300:]}" if r["exit"] else ""),
@@ -386,6 +402,11 @@ def main() -> int:
         bench_many_skies(stage, msleak, ms, out, results)
     if want("study"):
         bench_study(stage, msleak, out, results, args.quick)
+    if want("degrid"):
+        from bench_degrid import bench_degrid
+
+        bench_degrid(stage, msleak[:-1], ms, sky, out, results, args.quick, args.degrid_hours,
+                     args.keep)
     if not only:
         results["machine"]["load_avg_end"] = os.getloadavg()
     if not args.keep and not only:
@@ -396,7 +417,8 @@ def main() -> int:
 
         write_markdown(results, Path(args.doc))
     summary = {k: {"wall_s": v["wall_s"], "peak_rss_mib": v["peak_rss_mib"], "exit": v["exit"]}
-               for group in ("stages", "schedulers", "peers", "multisky", "study")
+               for group in ("stages", "schedulers", "peers", "multisky", "study",
+                             "degrid")
                for k, v in results[group].items() if "wall_s" in v}
     print(json.dumps(summary, indent=1))
     failed = [k for k, v in summary.items() if v["exit"]]

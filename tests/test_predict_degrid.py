@@ -25,6 +25,7 @@ from click.testing import CliRunner
 
 from ms_helpers import one_error_line, phase_centre
 from msleak.cli import cli
+from msleak.errors import InputError
 from msleak.predict import chunks, gridsky
 from msleak.predict.engine import predict
 from msleak.sky.cube import SkyCube, pixel_directions, recentre
@@ -82,25 +83,33 @@ def test_degrid_equals_direct(mss, field, beam, cc, tol):
 
 def test_transported_basis_is_needed_at_the_ncp(mss, monkeypatch):
     """With the local North basis instead (transport angle zero) the LOFAR beam is not
-    smooth around the pole: degrid misses by far more than epsilon (measured 0.35)."""
+    smooth around the pole: the measured beam spectrum does not fit any subgrid, so degrid
+    is refused; forced through anyway (support 0) it misses by far more than epsilon
+    (measured 0.35)."""
     ms = mss["ncp"]
     cube = _cube(ms)
     ref = _vis(ms, cube, "direct")
     monkeypatch.setattr(gridsky, "transport_angle",
                         lambda ra0, dec0, ra, dec: np.zeros(np.shape(ra)))
+    with pytest.raises(InputError, match="structure finer than 64 directions"):
+        _vis(ms, cube, "degrid")
+    monkeypatch.setattr(gridsky, "beam_support", lambda *args: 0.0)
     assert _rel_rms(_vis(ms, cube, "degrid"), ref) > 1e-2
 
 
-def test_lofar_error_is_the_beam_sampling(mss):
-    """The LOFAR-beam error above epsilon's level comes from the beam's sampling: a finer
-    subgrid (nsub 48 instead of 32) lowers it (by 10 on a 48-pixel sky, measured)."""
-    ms = mss["3c196"]
-    cube = _cube(ms, npix=48)
+def test_subgrid_sized_from_the_beam(mss, monkeypatch):
+    """The LOFAR beam's own spectrum needs room in the subgrid: sized from the measured
+    beam, degrid meets epsilon; with no room kept for the beam (nsub 24, support 0) the
+    error is far above it."""
+    ms = mss["ncp"]
+    cube = _cube(ms, npix=50, fov=15.0)  # the study's sky: the beam spans more cells
     ref = _vis(ms, cube, "direct")
-    coarse = _rel_rms(_vis(ms, cube, "degrid", epsilon=1e-8), ref)
-    fine = _rel_rms(_vis(ms, cube, "degrid", epsilon=1e-8, nsub=48), ref)
-    print(f"nsub 32: {coarse:.2e}, nsub 48: {fine:.2e}")
-    assert fine < coarse / 3
+    sized = _rel_rms(_vis(ms, cube, "degrid", epsilon=1e-8), ref)
+    monkeypatch.setattr(gridsky, "beam_support", lambda *args: 0.0)
+    blind = _rel_rms(_vis(ms, cube, "degrid", epsilon=1e-8, nsub=24), ref)
+    print(f"sized from the beam: {sized:.2e}, nsub 24 without the beam: {blind:.2e}")
+    assert sized <= 2e-8
+    assert blind > 10 * sized
 
 
 def test_point_source_on_a_pixel_centre(mss):
@@ -128,7 +137,7 @@ def test_auto_falls_back_to_direct_where_degrid_costs_more():
     80 x 80 sky over 8 deg (AUTO_MIN_PIXELS, the break-even at nsub 32) with |w| = 0 (one
     w-layer), but not two rows with w = +-500 wavelengths (five layers, four extra FFTs
     for two rows); 1000 rows spanning the same layers on a 120 x 120 sky amortise the FFTs; an
-    explicit ``degrid`` always degrids; nsub stays 32 whatever |w|."""
+    explicit ``degrid`` always degrids; nsub stays 32 whatever |w| and grows with the beam's support."""
     def grid(npix):
         return gridsky.PixelGrid(iquv=np.zeros((1, npix, npix, 4)),
                                  psi=np.zeros((npix, npix)), dl=np.radians(8.0 / npix),
@@ -136,17 +145,23 @@ def test_auto_falls_back_to_direct_where_degrid_costs_more():
                                  nsub=None, auto=True)
 
     assert 80 * 80 == gridsky.AUTO_MIN_PIXELS
+    g32 = gridsky.Geometry(nsub=32, support=0.0)
     xyz = np.zeros((1, 2, 3))
     tidx, p, q, freq = np.zeros(1, int), np.zeros(1, int), np.ones(1, int), np.array([150e6])
-    assert gridsky.worth_degridding(grid(80), xyz, tidx, p, q, freq)
+    assert gridsky.worth_degridding(grid(80), g32, xyz, tidx, p, q, freq)
     xyz[0, 1, 2] = 500 * 299_792_458.0 / 150e6
     two = (np.zeros(2, int), np.array([0, 1]), np.array([1, 0]))
-    assert not gridsky.worth_degridding(grid(80), xyz, *two, freq)
-    assert gridsky.worth_degridding(replace(grid(80), auto=False), xyz, *two, freq)
+    assert not gridsky.worth_degridding(grid(80), g32, xyz, *two, freq)
+    assert gridsky.worth_degridding(replace(grid(80), auto=False), g32, xyz, *two, freq)
     assert gridsky.subgrid_size(grid(80)) == gridsky.DEFAULT_NSUB
+    # a beam taking 5.8 cells: taper 6.08 + 1.5 + FREE_CELLS 6 + 5.8 = 19.4 -> 40
+    assert gridsky.subgrid_size(grid(80), 5.8) == 40
+    with pytest.raises(InputError, match="--nsub 24: epsilon 1e-06 and the beam's 5.8 cells"
+                       " need nsub >= 30"):
+        gridsky.subgrid_size(replace(grid(80), nsub=24), 5.8)
     many = (np.zeros(1000, int), np.arange(1000) % 2, 1 - np.arange(1000) % 2)
-    assert not gridsky.worth_degridding(grid(80), xyz, *many, freq)
-    assert gridsky.worth_degridding(grid(120), xyz, *many, freq)
+    assert not gridsky.worth_degridding(grid(80), g32, xyz, *many, freq)
+    assert gridsky.worth_degridding(grid(120), g32, xyz, *many, freq)
 
 
 def test_auto_direct_fallback_equals_direct(mss, monkeypatch):

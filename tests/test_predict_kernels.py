@@ -259,3 +259,22 @@ def test_plan_chunks_respects_budget():
     assert nt * nc * per <= 2 * 1024**3
     assert nc == 50 or nt == 1
     assert plan_chunks(4, 4, 6, 3, 15, 1.0, 8, False) == (1, 1)
+
+
+def test_plan_chunks_long_times_for_degridding():
+    """A degridded sky: all times (or ntime / tasks) when LONG_CHANNELS channels fit with
+    them, else fewer times with LONG_CHANNELS channels; always within the budget."""
+    from msleak.predict.chunks import LONG_CHANNELS
+
+    per = (96**2 * 8 + 1176 * 4 * 24 + 48 * 1601 * 4 * 40 + 48 * 900 * 80)  # per (t, c)
+    for tasks, most in ((1, 390), (2, 195), (4, 98)):
+        for budget in (64 * 1024**3, 2 * 1024**3, 200 * 1024**2, per * 3):
+            nt, nc = plan_chunks(390, 50, 48, 1600, 1176, budget, 8, True, long_times=True,
+                                 subgrid_dirs=900, tasks=tasks)
+            assert nt * nc * per <= budget
+            if budget >= most * LONG_CHANNELS * per:
+                assert nt == most and nc == min(50, budget // per // most)
+            elif budget >= LONG_CHANNELS * per:
+                assert (nt, nc) == (budget // per // LONG_CHANNELS, LONG_CHANNELS)
+            else:
+                assert (nt, nc) == (1, 3)

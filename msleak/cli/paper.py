@@ -7,7 +7,8 @@ from pathlib import Path
 import click
 
 from msleak.cli._common import study_double_option, study_invoker, study_workers_option
-from msleak.study.config import StudyConfig
+from msleak.study.config import (OBSERVED_UV_RANGE, RESOLUTIONS, SKY_FOV_DEG, StudyConfig,
+                                  nyquist_npix)
 from msleak.study.pipeline import run_study
 
 
@@ -32,7 +33,16 @@ def _observed(ctx, param, values):
 @click.command()
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--quick", is_flag=True, help="Reduced size (18 HBA fields, 2 h at 600 s, "
-              "both fields, all three fields of view): about 3 minutes on 2 cores.")
+              "both fields, all three fields of view): about 3 minutes on 2 cores. With "
+              "--resolution observed: 20 HBA fields whose baselines reach 800 wavelengths.")
+@click.option("--resolution", type=click.Choice(RESOLUTIONS), default="paper",
+              show_default=True, help="paper: a 50-pixel 15-deg sky, baselines 30-180 "
+              "wavelengths; observed: that of observed LOFAR data, baselines 30-800 "
+              "wavelengths and a sky whose pixels resolve them "
+              f"({nyquist_npix(SKY_FOV_DEG, OBSERVED_UV_RANGE[1])} pixels over "
+              f"{SKY_FOV_DEG:g} deg), "
+              "predicted by image-domain gridding (docs/paper.md 'Observation "
+              "resolution'). An OUTDIR holds one resolution.")
 @click.option("--seed", type=click.IntRange(0, None), default=2018, show_default=True,
               metavar="N", help="Seed of the sky model (the first realisation).")
 @click.option("--seeds", type=click.IntRange(1, None), default=1, show_default=True,
@@ -48,7 +58,7 @@ def _observed(ctx, param, values):
               "PS and the expected leakage (docs/science.md section 6-7). Repeatable.")
 @click.option("--stations", default=None, metavar="PATTERN",
               help="Override the stations (e.g. 'CS00[1-7]HBA*') [48 HBA core fields; "
-              "--quick: 18].")
+              "--quick: 18, or 20 with --resolution observed].")
 @click.option("--duration", "duration_h", type=float, default=None, metavar="HOURS",
               help="Override the synthesis time of both fields [13 h NCP, 8 h 3C196; "
               "--quick: 2 h].")
@@ -63,24 +73,26 @@ def _observed(ctx, param, values):
               help="Rerun every step, replacing its outputs, even those up to date "
               "(without it an existing OUTDIR resumes).")
 @click.pass_context
-def paper(ctx, outdir, quick, seed, seeds, fields, beam, observed, stations, duration_h,
-          interval_s, nchan, double, workers, overwrite):
+def paper(ctx, outdir, quick, resolution, seed, seeds, fields, beam, observed, stations,
+          duration_h, interval_s, nchan, double, workers, overwrite):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
 
     Resumable: a rerun skips finished steps whose inputs are unchanged; --overwrite
-    reruns them all.
+    reruns them all (and may replace a study of the other --resolution).
 
     \b
     Examples:
       msleak paper study/ --quick
+      msleak paper study_observed/ --resolution observed
       msleak paper study/ --observed ncp=ncp_Q.fits,ncp_U.fits
     """
     cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed, seeds=seeds,
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
-                      interval_s=interval_s, nchan=nchan, double=double)
+                      interval_s=interval_s, nchan=nchan, double=double,
+                      resolution=resolution)
     with study_invoker(ctx, "paper", workers) as (invoke, workers):
         report = run_study(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"report: {report}")

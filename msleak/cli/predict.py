@@ -56,17 +56,17 @@ def _split(_ctx, _param, value):
               help="Create the columns as complex128 (casacore DComplex) to keep --double's "
                    "values (implies --double). For columns msleak grid reads: DP3 and "
                    "WSClean cannot open a complex128 column.")
-@click.option("--method", type=click.Choice(METHODS), default="direct",
+@click.option("--method", type=click.Choice(METHODS), default="auto",
               show_default=True,
               help="direct: every pixel summed as a point source; degrid: image-domain "
                    "gridding, at a cost independent of the pixel count (pixel skies only); "
-                   f"auto: degrid for pixel skies of at least {AUTO_MIN_PIXELS} pixels, "
-                   "direct otherwise.")
+                   f"auto: degrid for pixel skies of at least {AUTO_MIN_PIXELS} pixels "
+                   "where cheaper, direct otherwise (logged with -v).")
 @click.option("--epsilon", type=float, default=1e-6, show_default=True, metavar="FRACTION",
               help="Requested relative accuracy of --method degrid.")
 @click.option("--nsub", type=int, default=None, metavar="N",
-              help="Subgrid size of --method degrid (even, >= 8) [default: 32; w-layers "
-                   "serve any |w|].")
+              help="Subgrid size of --method degrid (even, >= 8) [default: from the beam's "
+                   "measured spectrum, at least 32; w-layers serve any |w|].")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,
               help="Working-set budget, e.g. 2GB, 512MB (binary units), shared by the chunks "
                    "computed at the same time (per worker process with a scheduler address).")
@@ -105,9 +105,9 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, cent
 
     Pixel skies (FITS cubes) are predicted pixel by pixel (--method direct) or by
     image-domain gridding at a cost independent of the pixel count (--method degrid, to
-    a relative accuracy --epsilon, which the LOFAR beam over a wide field does not yet
-    reach at the default --nsub); --method auto degrids the larger ones
-    (docs/predict.md, "Image-domain gridding").
+    a relative accuracy --epsilon, the subgrid sized from the beam's measured spectrum);
+    --method auto (the default) degrids the larger ones (docs/predict.md, "Image-domain
+    gridding").
 
     \b
     Examples:

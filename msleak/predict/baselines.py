@@ -21,7 +21,7 @@ import numba as nb
 import numpy as np
 
 from msleak.constants import SPEED_OF_LIGHT
-from msleak.predict.kernels import _regular_spacing
+from msleak.predict.kernels import _regular_spacing, sandwich
 
 __all__ = ["predict_rows"]
 
@@ -70,34 +70,23 @@ def _rows(jones, have_jones, left, have_left, tidx, p, q, uvw, lmn1, freq, regul
                     v10 += b10
                     v11 += b11
                     continue
-                p00, p01, p10, p11 = jp[s, 0, 0], jp[s, 0, 1], jp[s, 1, 0], jp[s, 1, 1]
-                q00, q01 = np.conj(jq[s, 0, 0]), np.conj(jq[s, 0, 1])
-                q10, q11 = np.conj(jq[s, 1, 0]), np.conj(jq[s, 1, 1])
-                t00 = p00 * b00 + p01 * b10
-                t01 = p00 * b01 + p01 * b11
-                t10 = p10 * b00 + p11 * b10
-                t11 = p10 * b01 + p11 * b11
-                v00 += t00 * q00 + t01 * q01
-                v01 += t00 * q10 + t01 * q11
-                v10 += t10 * q00 + t11 * q01
-                v11 += t10 * q10 + t11 * q11
+                t00, t01, t10, t11 = sandwich(jp[s, 0, 0], jp[s, 0, 1], jp[s, 1, 0],
+                                              jp[s, 1, 1], b00, b01, b10, b11, jq[s, 0, 0],
+                                              jq[s, 0, 1], jq[s, 1, 0], jq[s, 1, 1])
+                v00 += t00
+                v01 += t01
+                v10 += t10
+                v11 += t11
             if have_left:
                 lt = t if left.shape[1] > 1 else 0
                 lc = c if left.shape[2] > 1 else 0
                 la = a if left.shape[0] > 1 else 0
                 lb = b if left.shape[0] > 1 else 0
-                l00, l01, l10, l11 = (left[la, lt, lc, 0, 0], left[la, lt, lc, 0, 1],
-                                      left[la, lt, lc, 1, 0], left[la, lt, lc, 1, 1])
-                m00, m01 = np.conj(left[lb, lt, lc, 0, 0]), np.conj(left[lb, lt, lc, 0, 1])
-                m10, m11 = np.conj(left[lb, lt, lc, 1, 0]), np.conj(left[lb, lt, lc, 1, 1])
-                t00 = l00 * v00 + l01 * v10
-                t01 = l00 * v01 + l01 * v11
-                t10 = l10 * v00 + l11 * v10
-                t11 = l10 * v01 + l11 * v11
-                v00 = t00 * m00 + t01 * m01
-                v01 = t00 * m10 + t01 * m11
-                v10 = t10 * m00 + t11 * m01
-                v11 = t10 * m10 + t11 * m11
+                v00, v01, v10, v11 = sandwich(
+                    left[la, lt, lc, 0, 0], left[la, lt, lc, 0, 1], left[la, lt, lc, 1, 0],
+                    left[la, lt, lc, 1, 1], v00, v01, v10, v11,
+                    left[lb, lt, lc, 0, 0], left[lb, lt, lc, 0, 1], left[lb, lt, lc, 1, 0],
+                    left[lb, lt, lc, 1, 1])
             out[r, c, 0] = v00
             out[r, c, 1] = v01
             out[r, c, 2] = v10

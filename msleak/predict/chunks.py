@@ -30,7 +30,8 @@ from msleak.io.ms import iter_rows, read_used_antennas
 from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
-from msleak.predict.gridsky import (DEFAULT_NSUB, DEGRID_BATCH, degrid_visibilities,
+from msleak.predict.gridsky import (DEGRID_BATCH, FALLBACK_MAX_PIXELS, PIXEL_BEAM_BYTES,
+                                   PLAN_NSUB, degrid_geometry, degrid_visibilities,
                                    worth_degridding)
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
 
@@ -75,15 +76,27 @@ class Chunk:
         return f"{Path(self.ms).name} {self.key} chunk {self.index}"
 
 
+#: channels per chunk a degridded sky's long chunks keep at least (:func:`plan_chunks`)
+LONG_CHANNELS = 8
+
+
 def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time: int,
                 memory_limit: float, itemsize: int, beam: bool,
-                fixed_bytes: float = 0.0, nsky: int = 1) -> tuple[int, int]:
+                fixed_bytes: float = 0.0, nsky: int = 1, long_times: bool = False,
+                subgrid_dirs: int = 0, tasks: int = 1) -> tuple[int, int]:
     """Times and channels per chunk so that the working set stays under ``memory_limit``.
+
+    All channels and as many times as fit; with ``long_times`` (a degridded sky, whose
+    w-layer FFTs are done once per chunk and channel) all times and as many channels as
+    fit, but at least :data:`LONG_CHANNELS` channels (fewer times) while memory allows,
+    since a beam model evaluates channels together more cheaply than one by one, and at
+    most ntime / ``tasks`` times, so that the ``tasks`` chunks run at once all have work.
 
     The per-(time, channel) estimate counts the beam Jones matrices towards the ``ndir``
     directions of all skies (complex128 as the beam models compute them, the cast copy
-    and one temporary of the same size) and, for each of the ``nsky`` skies, its
-    visibility matrices and its gathered and written rows.
+    and one temporary of the same size), those towards the ``subgrid_dirs`` directions of
+    degridded skies (one complex128 copy, 80 bytes per station and direction) and, for
+    each of the ``nsky`` skies, its visibility matrices and its gathered and written rows.
 
     Returns
     -------
@@ -92,6 +105,7 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
     per_unit = nsky * ((2 * nstation) ** 2 * itemsize + rows_per_time * 4 * (2 * itemsize + 8))
     if beam:
         per_unit += nstation * (ndir + 1) * 4 * (2 * 16 + itemsize)
+        per_unit += nstation * subgrid_dirs * 80  # degrid's complex128 Jones, built per time
     avail = memory_limit - fixed_bytes
     units = int(avail // per_unit) if avail > 0 else 0
     if units < 1:
@@ -99,6 +113,12 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
                     "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
                     (per_unit + fixed_bytes) / 2**20)
         return 1, 1
+    if long_times:
+        least = min(nchan, LONG_CHANNELS)
+        most = -(-ntime // max(1, tasks))
+        if units >= most * least:
+            return most, min(nchan, units // most)
+        return (units // least, least) if units >= least else (1, units)
     if units >= nchan:
         return max(1, min(ntime, units // nchan)), nchan
     return 1, units
@@ -149,10 +169,11 @@ def _group_rows(ms: Path, f: int, d: int) -> tuple[np.ndarray, ...]:
                     for name in ("TIME", "ANTENNA1", "ANTENNA2")))
 
 
-def iter_chunks(k: int, plan, memory_per_task: float, dtype, centre_correction, beam
-                ) -> Iterator[Chunk]:
+def iter_chunks(k: int, plan, memory_per_task: float, dtype, centre_correction, beam,
+                tasks: int = 1) -> Iterator[Chunk]:
     """Time chunks of plan ``k`` (the MS ``plan.ms``, read through ``plan.table``), after
-    the time each active column's run state says it has reached."""
+    the time each active column's run state says it has reached; ``tasks`` chunks run at
+    once."""
     for f, d in plan.groups:
         key = f"f{f}_d{d}"
         comp = plan.skies[(f, d)]
@@ -171,7 +192,7 @@ def iter_chunks(k: int, plan, memory_per_task: float, dtype, centre_correction, 
         st_index[stations] = np.arange(stations.size)
         nt_chunk, nc_chunk = _chunk_size(plan, comp, times.size, freq.size, stations.size,
                                          rows_per_time, rows_all.size, memory_per_task, dtype,
-                                         beam != "none")
+                                         beam != "none", tasks)
         log.info("%s field %d, data description %d: %d sky(s) with %s sources, %d directions "
                  "in all, %d stations, %d times (%d per chunk), %d channels (%d per chunk), "
                  "feeds %s, UVW tolerance %.3g mm (%g rad at %.3f MHz)", plan.ms.name, f, d,
@@ -198,22 +219,26 @@ def iter_chunks(k: int, plan, memory_per_task: float, dtype, centre_correction, 
 
 def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
                 rows_per_time: int, nrows: int, memory_per_task: float, dtype,
-                has_beam: bool) -> tuple[int, int]:
+                has_beam: bool, tasks: int = 1) -> tuple[int, int]:
     """:func:`plan_chunks` for a group: the skies, the rows' metadata
     and the kernel's scratch memory are the fixed part."""
     direct = [comp.skies[j] for j in plan.active if comp.skies[j].grid is None]
     pixel = [comp.skies[j] for j in plan.active if comp.skies[j].grid is not None]
-    # a pixel sky's chunk predicted directly (auto's fallback) or its rows whose UVW are not
-    # antenna-based take the beam at every pixel; a degridded chunk takes complex128 Jones
-    # at nsub^2 directions (three copies) and transforms DEGRID_BATCH subgrids at once
-    nsub = max([s.grid.nsub or DEFAULT_NSUB for s in pixel], default=0)
-    widest = max([s.ndir for s in pixel], default=0)
-    ndir = comp.ndir + max(widest, 6 * nsub ** 2)
+    # a degridded chunk takes complex128 Jones at nsub^2 directions (three copies) and
+    # transforms DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's
+    # fallback, below FALLBACK_MAX_PIXELS; rows whose UVW are not antenna-based) takes the
+    # beam at every pixel, a few times at once within PIXEL_BEAM_BYTES
+    # (_pixel_time_blocks), and the direct kernel's scratch
+    nsub = max([s.grid.nsub or PLAN_NSUB for s in pixel], default=0)
+    widest = max([s.ndir for s in pixel if s.grid.auto and s.grid.npix ** 2
+                  < FALLBACK_MAX_PIXELS], default=0)
     fixed = (comp.nbytes + nrows * 28 + 128 * DEGRID_BATCH * nsub ** 2
+             + (PIXEL_BEAM_BYTES if widest else 0)
              + kernels.scratch_bytes(nstation, max(comp.ndir, widest),
                                      sum(s.ndir for s in direct) + widest, nchan, dtype))
-    return plan_chunks(ntime, nchan, nstation, ndir, rows_per_time, memory_per_task,
-                       dtype.itemsize, has_beam, fixed, nsky=len(plan.active))
+    return plan_chunks(ntime, nchan, nstation, comp.ndir, rows_per_time, memory_per_task,
+                       dtype.itemsize, has_beam, fixed, nsky=len(plan.active),
+                       long_times=bool(pixel), subgrid_dirs=nsub ** 2, tasks=tasks)
 
 
 def chunk_task(job: Chunk, _shared=None) -> tuple[list, dict, int]:
@@ -253,8 +278,11 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
     fast = np.flatnonzero(~off) if off.any() else slice(None)
     add_time(timings, "uvw", tick)
     rows = (tidx[fast], p[fast], q[fast])
-    use_degrid = [sky.grid is not None and not off.all()
-                  and worth_degridding(sky.grid, xyz, *rows, freq) for _, sky in skies]
+    geometry = [degrid_geometry(sky.grid, beam_model, times, freq, stations,
+                                centre_correction)
+                if sky.grid is not None and not off.all() else None for _, sky in skies]
+    use_degrid = [g is not None and worth_degridding(sky.grid, g, xyz, *rows, freq)
+                  for g, (_, sky) in zip(geometry, skies)]
     direct = [(index, sky) for index, sky in skies if sky.grid is None]
     outs = [np.empty((tidx.size, freq.size, 4), dtype=dtype) for _ in skies]
     for c0 in range(0, freq.size, nc_chunk):
@@ -274,42 +302,70 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                                                            q[fast], jones_left=left)
             del grams
         tick = add_time(timings, "kernel", tick)
-        for out, (_, sky), use in zip(outs, skies, use_degrid):
+        for out, (_, sky), use, geom in zip(outs, skies, use_degrid, geometry):
             if sky.grid is not None and not off.all():
-                out[fast, c0:c1] = _pixel_sky(sky, use, beam_model, fmeta, times,
-                                              slice(c0, c1), freq, stations, xyz, rows,
-                                              centre_correction, dtype)
+                out[fast, c0:c1] = _pixel_sky(sky, geom if use else None, beam_model,
+                                              fmeta, times, slice(c0, c1), freq, stations,
+                                              xyz, rows, centre_correction, dtype)
         tick = add_time(timings, "degrid", tick)
         if off.any():
             for out, (index, sky) in zip(outs, skies):
-                sky_jones, sky_left = (jones, left) if sky.grid is None else _beam(
-                    beam_model, sky, fmeta, times, freq[c0:c1], stations, centre_correction,
-                    dtype)
-                out[off, c0:c1] = predict_rows(
-                    _directions_jones(sky_jones, index if sky.grid is None else
-                                      np.arange(sky.ndir)), tidx[off], p[off],
-                    q[off], uvw[off], sky.lmn1, freq[c0:c1], sky.iquv[:, c0:c1],
-                    jones_left=sky_left, dtype=dtype)
+                if sky.grid is None:
+                    out[off, c0:c1] = predict_rows(
+                        _directions_jones(jones, index), tidx[off], p[off], q[off], uvw[off],
+                        sky.lmn1, freq[c0:c1], sky.iquv[:, c0:c1], jones_left=left,
+                        dtype=dtype)
+                    continue
+                rows_off = np.flatnonzero(off)
+                for t0, t1, sky_jones, sky_left in _pixel_time_blocks(
+                        sky, beam_model, fmeta, times, freq[c0:c1], stations,
+                        centre_correction, dtype):
+                    sel = rows_off[(tidx[rows_off] >= t0) & (tidx[rows_off] < t1)]
+                    out[sel, c0:c1] = predict_rows(
+                        _directions_jones(sky_jones, np.arange(sky.ndir)), tidx[sel] - t0,
+                        p[sel], q[sel], uvw[sel], sky.lmn1, freq[c0:c1],
+                        sky.iquv[:, c0:c1], jones_left=sky_left, dtype=dtype)
             add_time(timings, "per_baseline", tick)
         del jones
     return outs, int(off.sum())
 
 
-def _pixel_sky(sky, use_degrid: bool, beam_model, fmeta, times: np.ndarray,
+def _pixel_sky(sky, geometry, beam_model, fmeta, times: np.ndarray,
                channels: slice, freq: np.ndarray, stations: np.ndarray, xyz: np.ndarray,
                rows: tuple, centre_correction: bool, dtype) -> np.ndarray:
     """Visibilities (nrow, nchan, 4) of the antenna-based ``rows`` (tidx, p, q) for a sky
-    with a pixel grid, on ``freq[channels]``: degridded, or (a chunk where that costs more,
-    :func:`msleak.predict.gridsky.worth_degridding`) summed directly with its own beam."""
-    if use_degrid:
-        return degrid_visibilities(sky.grid, channels, beam_model, times, freq[channels],
-                                   stations, xyz, *rows, centre_correction)
-    jones, left = _beam(beam_model, sky, fmeta, times, freq[channels], stations,
-                        centre_correction, dtype)
-    grams = kernels.predict_grams(jones, xyz, sky.lmn1, freq[channels],
-                                  [(np.arange(sky.ndir), sky.w[:, channels],
-                                    sky.sign[:, channels])], dtype=dtype)
-    return kernels.gather_rows(grams[0], *rows, jones_left=left)
+    with a pixel grid, on ``freq[channels]``: degridded with ``geometry``, or (None: a
+    chunk where that costs more, :func:`msleak.predict.gridsky.worth_degridding`) summed
+    directly with its own beam."""
+    if geometry:
+        return degrid_visibilities(sky.grid, geometry, channels, beam_model, times,
+                                   freq[channels], stations, xyz, *rows, centre_correction)
+    tidx, p, q = rows
+    out = np.empty((tidx.size, freq[channels].size, 4), dtype=dtype)
+    for t0, t1, jones, left in _pixel_time_blocks(sky, beam_model, fmeta, times,
+                                                  freq[channels], stations,
+                                                  centre_correction, dtype):
+        grams = kernels.predict_grams(jones, xyz[t0:t1], sky.lmn1, freq[channels],
+                                      [(np.arange(sky.ndir), sky.w[:, channels],
+                                        sky.sign[:, channels])], dtype=dtype)
+        sel = np.flatnonzero((tidx >= t0) & (tidx < t1))
+        out[sel] = kernels.gather_rows(grams[0], tidx[sel] - t0, p[sel], q[sel],
+                                       jones_left=left)
+    return out
+
+
+def _pixel_time_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
+                       stations: np.ndarray, centre_correction: bool, dtype) -> Iterator:
+    """(t0, t1, Jones, correction) of :func:`_beam` towards every pixel of a pixel sky for
+    blocks of times t0..t1-1, each within :data:`PIXEL_BEAM_BYTES` (three complex128
+    copies), so that a long chunk planned for degridding never holds the beam at every
+    pixel for all its times."""
+    per_time = 3 * 16 * 4 * stations.size * (sky.ndir + 1) * freq.size
+    block = max(1, int(PIXEL_BEAM_BYTES // max(1, per_time)))
+    for t0 in range(0, times.size, block):
+        t1 = min(times.size, t0 + block)
+        yield (t0, t1, *_beam(beam_model, sky, fmeta, times[t0:t1], freq, stations,
+                              centre_correction, dtype))
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

@@ -162,7 +162,7 @@ def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: floa
 
 def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
                    fov_deg: float | None = None, interpolate: bool = False,
-                   method: str = "direct", epsilon: float = 1e-6,
+                   method: str = "auto", epsilon: float = 1e-6,
                    nsub: int | None = None) -> SkyComponents:
     """The sources of one sky for one field and spectral window.
 

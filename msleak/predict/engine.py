@@ -51,7 +51,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
-            workers: int | None = None, progress: bool = False, method: str = "direct",
+            workers: int | None = None, progress: bool = False, method: str = "auto",
             epsilon: float = 1e-6, nsub: int | None = None):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
@@ -102,17 +102,18 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     progress : bool
         Progress bar on stderr.
     method : {"auto", "direct", "degrid"}
-        How pixel skies are predicted: "direct" (the default) sums every pixel as a point
-        source;
+        How pixel skies are predicted: "direct" sums every pixel as a point source;
         "degrid" uses image-domain gridding (:mod:`msleak.predict.idg`; FITS cubes, sky
-        Datasets and SkyCubes only); "auto" degrids pixel skies of at least
-        :data:`msleak.predict.gridsky.AUTO_MIN_PIXELS` pixels. Point-source skies are
-        always predicted directly (docs/predict.md, "Image-domain gridding").
+        Datasets and SkyCubes only); "auto" (the default) degrids pixel skies of at least
+        :data:`msleak.predict.gridsky.AUTO_MIN_PIXELS` pixels where its modelled cost is
+        lower. Point-source skies are always predicted directly (docs/predict.md,
+        "Image-domain gridding").
     epsilon : float
         Requested relative accuracy of the degridder (0 < epsilon < 1).
     nsub : int, optional
-        Degridder subgrid size (even, >= 8); default 32 (larger only if epsilon's taper
-        needs it); any |w| is served by w-layers.
+        Degridder subgrid size (even, >= 8); default: chosen per chunk from the beam's
+        measured spectrum and epsilon's taper, at least 32
+        (:func:`msleak.predict.gridsky.subgrid_size`); any |w| is served by w-layers.
 
     Returns
     -------
@@ -198,7 +199,14 @@ def _check_paths(ms_list: list) -> list[Path]:
 
 @contextlib.contextmanager
 def _runner(plans: list, scheduler, workers, budget: int):
-    """The dask runner of a run; refuses the EveryBeam direct model off this process."""
+    """The dask runner of a run; refuses the EveryBeam direct model off this process.
+    A run whose skies are all degridded computes one chunk at a time on all cores
+    (unless ``workers`` says otherwise): the degridder's kernel and FFTs are threaded,
+    and a longer chunk shares its w-layer FFTs among more rows."""
+    if workers is None and scheduler in ("threads", "sync") and all(
+            sky.grid is not None for plan in plans for comp in plan.skies.values()
+            for sky in comp.skies):
+        workers = 1
     with open_runner(scheduler, workers, budget) as runner:
         if runner.kind in ("processes", "distributed"):
             for plan in plans:
@@ -220,7 +228,7 @@ def _run(plans: list, scheduler, workers, budget: int, *, dtype, centre_correcti
             for plan in plans:
                 plan.timings["setup"] = _time.perf_counter() - t_start
             bar = _progress_bar(sum(p.total_rows for p in plans), progress)
-            jobs = _all_chunks(plans, runner.memory_per_task, dtype, centre_correction, beam,
+            jobs = _all_chunks(plans, runner, dtype, centre_correction, beam,
                                restart, bar, t_start)
             try:
                 _write_chunks(runner, jobs, plans, bar, t_start)
@@ -240,16 +248,15 @@ def _run(plans: list, scheduler, workers, budget: int, *, dtype, centre_correcti
             rollback.close()
 
 
-def _all_chunks(plans, memory_per_task, dtype, centre_correction, beam, restart, bar,
-                t_start):
+def _all_chunks(plans, runner, dtype, centre_correction, beam, restart, bar, t_start):
     """The chunks of every MS in write order; each MS is opened when its turn comes and
     finished right away when nothing is left to predict."""
     index = 0
     for k, plan in enumerate(plans):
         runstate.start(plan, restart, bar)
         previous = None
-        for job in chunks.iter_chunks(k, plan, memory_per_task, dtype, centre_correction,
-                                      beam):
+        for job in chunks.iter_chunks(k, plan, runner.memory_per_task, dtype,
+                                      centre_correction, beam, tasks=runner.workers):
             job.index = index
             index += 1
             if previous is not None:
@@ -295,7 +302,7 @@ def _predict_in_memory(plan, scheduler, workers, budget: int, *, dtype, centre_c
         bar = _progress_bar(plan.total_rows, progress)
         try:
             jobs = chunks.iter_chunks(0, plan, runner.memory_per_task, dtype,
-                                      centre_correction, beam)
+                                      centre_correction, beam, tasks=runner.workers)
             with contextlib.closing(runner.map(chunks.chunk_task, _numbered(jobs))) as done:
                 for job, (vis, timings, n_per_baseline) in done:
                     parts.append((job.rows, job.times[job.tidx], job.stations[job.p],

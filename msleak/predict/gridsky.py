@@ -15,6 +15,7 @@ direct path's J(s0)^-1 J B J^H J(s0)^-H.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -27,15 +28,31 @@ from msleak.errors import InputError
 from msleak.predict import idg
 from msleak.predict.kernels import lmn_minus_one
 
-__all__ = ["PixelGrid", "pixel_grid", "choose_method", "worth_degridding",
-           "degrid_visibilities",
-           "AUTO_MIN_PIXELS", "DEFAULT_NSUB", "DEGRID_BATCH", "METHODS"]
+__all__ = ["PixelGrid", "Geometry", "pixel_grid", "choose_method", "worth_degridding",
+           "beam_support", "subgrid_size", "degrid_geometry", "degrid_visibilities",
+           "AUTO_MIN_PIXELS", "FALLBACK_MAX_PIXELS", "DEFAULT_NSUB", "FREE_CELLS",
+           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "METHODS"]
 
 METHODS = ("auto", "direct", "degrid")
 #: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
 AUTO_MIN_PIXELS = 6400
-#: default subgrid size (w-layers serve any |w|)
+#: ``method="auto"`` predicts a chunk of a pixel sky directly where cheaper only below
+#: this many pixels (larger skies are always degridded: no beam at every pixel is planned)
+FALLBACK_MAX_PIXELS = 4 * AUTO_MIN_PIXELS
+#: smallest subgrid size chosen (w-layers serve any |w|)
 DEFAULT_NSUB = 32
+#: uv cells per side a chosen subgrid keeps, beyond the taper and the beam, for a chunk's
+#: uv spread and w residual (docs/predict.md, "Subgrid size from the beam")
+FREE_CELLS = 6.0
+#: subgrid size the memory planner assumes when it is chosen from the beam
+PLAN_NSUB = 48
+#: beam at every pixel of a pixel sky summed directly: at most this many bytes at once
+PIXEL_BEAM_BYTES = 512 * 2**20
+#: directions per axis at which the beam's spectrum is measured
+_PROBE = 64
+#: part of the beam's spectrum's norm below which a slowly decaying floor ends the
+#: measurement (:func:`beam_support`)
+_FLOOR = 1e-3
 #: subgrids transformed at once by a chunk task (memory: 128 nsub^2 bytes each, FFT included)
 DEGRID_BATCH = 512
 #: cost of one uv-grid cell of a w-layer's FFT, in pixels of one visibility of the
@@ -43,6 +60,8 @@ DEGRID_BATCH = 512
 _FFT_COST = 18.0
 #: largest deviation of a pixel from the fitted (l, m) grid, in pixels
 _GRID_RTOL = 1e-6
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -181,21 +200,32 @@ def choose_method(method: str, grid: PixelGrid | None, npixels: int, label: str,
     return "degrid"
 
 
-def worth_degridding(grid: PixelGrid, xyz: np.ndarray, tidx: np.ndarray, p: np.ndarray,
-                     q: np.ndarray, freq: np.ndarray) -> bool:
+@dataclass(frozen=True)
+class Geometry:
+    """Subgrid size and the uv cells per side the beam products take (``support`` of
+    :func:`msleak.predict.idg.degrid`) for one sky and chunk."""
+
+    nsub: int
+    support: float
+
+
+def worth_degridding(grid: PixelGrid, geometry: Geometry, xyz: np.ndarray,
+                     tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
+                     freq: np.ndarray) -> bool:
     """Whether degridding these rows is cheaper than the direct sum: always with
-    ``method="degrid"``; with "auto" while the modelled costs per channel (in units of
-    one pixel of one visibility of the direct sum) favour it::
+    ``method="degrid"`` and for skies of :data:`FALLBACK_MAX_PIXELS` pixels or more;
+    with "auto" while the modelled costs per channel (in units of one pixel of one
+    visibility of the direct sum) favour it::
 
         nrow npix^2 >= nrow nsub^2 AUTO_MIN_PIXELS / 32^2 + (layers - 1) (2 npix)^2 18
 
     The first term is the measured break-even without w-layers, the second the extra
     FFTs of the w-layers the rows span (:func:`msleak.predict.idg.w_layer_width`), 18
     the measured cost of an FFT cell in pixels of the direct sum (docs/predict.md)."""
-    if not grid.auto:
+    if not grid.auto or grid.npix ** 2 >= FALLBACK_MAX_PIXELS:
         return True
-    nsub = subgrid_size(grid)
-    dw = idg.w_layer_width(nsub, grid.npix, grid.dl, grid.epsilon)
+    nsub = geometry.nsub
+    dw = idg.w_layer_width(nsub, grid.npix, grid.dl, grid.epsilon, geometry.support)
     w = (xyz[tidx, q, 2] - xyz[tidx, p, 2]) * float(np.max(freq)) / SPEED_OF_LIGHT
     layers = 1 if w.size == 0 else int(np.rint(w.max() / dw) - np.rint(w.min() / dw)) + 1
     degrid = (tidx.size * nsub ** 2 * AUTO_MIN_PIXELS / DEFAULT_NSUB ** 2
@@ -211,48 +241,125 @@ def _check_field(grid: PixelGrid, label: str) -> None:
                          "direct") from None
 
 
-def subgrid_size(grid: PixelGrid) -> int:
-    """The subgrid size: ``grid.nsub`` (refused when too small for ``grid.epsilon``'s
-    taper) or the smallest even size >= :data:`DEFAULT_NSUB` that serves it; any |w| fits
-    through w-layers."""
-    nsub = grid.nsub or DEFAULT_NSUB
-    while True:
+def subgrid_size(grid: PixelGrid, support: float = 0.0) -> int:
+    """The subgrid size for a beam whose products take ``support`` uv cells per side:
+    ``grid.nsub`` (refused when too small for ``grid.epsilon``'s taper and the beam), or
+    the smallest even size >= :data:`DEFAULT_NSUB` that leaves :data:`FREE_CELLS` per
+    side beyond them; any |w| fits through w-layers."""
+    if grid.nsub is not None:
         try:
-            idg.w_layer_width(nsub, grid.npix, grid.dl, grid.epsilon)
-            return nsub
+            idg.w_layer_width(grid.nsub, grid.npix, grid.dl, grid.epsilon, support)
         except ValueError as err:
-            if grid.nsub is not None:
-                raise InputError(f"--nsub {grid.nsub}: {err}") from None
-            nsub += 2
+            raise InputError(f"--nsub {grid.nsub}: {err}") from None
+        return grid.nsub
+    need = 1.5 + idg.taper_halfwidth(grid.epsilon) + support + FREE_CELLS
+    return max(DEFAULT_NSUB, 2 * math.ceil(need))
+
+
+def beam_support(grid: PixelGrid, beam_model, time: float, freq: float,
+                 stations: np.ndarray, centre_correction: bool) -> float:
+    """uv cells per side (of 1 / P, P the padded field) that the spectrum of the beam
+    products J'_p J'_q^H takes, measured at one time and frequency; 0 without a beam.
+
+    Per station, the Jones matrices J' that :func:`degrid_visibilities` uses are taken at
+    64 x 64 directions across the padded field, multiplied by the degridder's taper T and
+    Fourier transformed. With t(r) the part of the spectrum's norm outside the square of
+    half-width r, r_p is the smallest r with t(r) <= epsilon, or where t, below 1e-3,
+    has reached a slowly decaying floor (t(r) <= 10 t(r + 4); EveryBeam's LOFAR element
+    response has one, a kink at the zenith, docs/predict.md). T alone takes
+    :func:`msleak.predict.idg.taper_halfwidth` cells h, so J'_p takes r_p - h, and a
+    product of two stations twice the largest of those. A beam whose r_p comes within 4
+    cells of the probe's 32 has structure the subgrid cannot hold: refused
+    (InputError)."""
+    if beam_model is None:
+        return 0.0
+    jones, left = _subgrid_jones(grid, beam_model, _PROBE, np.array([time]),
+                                 np.array([freq]), stations, centre_correction)
+    jones = jones[:, 0, 0] if left is None else left[:, 0, 0, None] @ jones[:, 0, 0]
+    t1 = idg.taper_1d(_PROBE, idg.taper_beta(grid.epsilon))
+    field = jones.reshape(-1, _PROBE, _PROBE, 4) * np.outer(t1, t1)[None, :, :, None]
+    power = np.sum(np.abs(np.fft.fft2(field, axes=(1, 2))) ** 2, axis=-1)
+    k = np.abs(np.fft.fftfreq(_PROBE, 1.0 / _PROBE))
+    radius = np.maximum(k[:, None], k[None, :]).astype(np.int64).ravel()
+    nring = _PROBE // 2 + 1
+    rings = np.stack([np.bincount(radius, weights=pw.ravel(), minlength=nring)
+                      for pw in power])
+    outside = np.cumsum(rings[:, ::-1], axis=1)[:, ::-1]        # outside[r] = sum_{>= r}
+    tail = np.sqrt(np.append(outside[:, 1:], np.zeros((len(rings), 1)), axis=1)
+                   / outside[:, :1])
+    ahead = np.append(tail[:, 4:], np.zeros((len(rings), 4)), axis=1)
+    done = (tail <= grid.epsilon) | ((tail <= _FLOOR) & (tail <= 10.0 * ahead))
+    r_p = np.argmax(done, axis=1)                                # done[:, -1] is True
+    worst = float(np.max(tail[np.arange(len(rings)), r_p]))
+    r = int(np.max(r_p))
+    if r >= _PROBE // 2 - 4:
+        raise InputError(f"--method degrid: the beam has structure finer than "
+                         f"{_PROBE} directions across the padded "
+                         f"{np.degrees(idg.PAD * grid.npix * grid.dl):.1f} deg field resolve "
+                         f"({worst:.1e} of it left); use --method direct")
+    return 2.0 * max(0.0, r - idg.taper_halfwidth(grid.epsilon))
+
+
+#: geometries already logged in this process (one line per sky size and result)
+_LOGGED: set = set()
+
+
+def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.ndarray,
+                    stations: np.ndarray, centre_correction: bool) -> Geometry:
+    """The :class:`Geometry` of a chunk: the beam's support measured at the chunk's middle
+    time and highest frequency, the subgrid size from it (:func:`subgrid_size`); logged
+    once per sky size and result."""
+    support = beam_support(grid, beam_model, float(times[times.size // 2]),
+                           float(np.max(freq)), stations, centre_correction)
+    geometry = Geometry(nsub=subgrid_size(grid, support), support=support)
+    key = (grid.npix, grid.dl, grid.epsilon, geometry)
+    if key not in _LOGGED:
+        _LOGGED.add(key)
+        log.info("degrid %d x %d pixels: the beam takes %.1f uv cells per side at %.3f MHz, "
+                 "subgrids of %d x %d", grid.npix, grid.npix, support, np.max(freq) / 1e6,
+                 geometry.nsub, geometry.nsub)
+    return geometry
 
 
 def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations,
-                   centre_correction: bool) -> np.ndarray | None:
-    """J(s0)^-1 J(s) R(psi) (nst, nt, nchan, nsub^2, 2, 2) at the subgrid directions in
-    the transported basis; None without a beam."""
+                   centre_correction: bool) -> tuple:
+    """J(s) R(psi) (nst, nt, nchan, nsub^2, 2, 2) at the subgrid directions in the
+    transported basis, and the correction J(s0)^-1 (nst, nt, nchan, 2, 2) or None; (None,
+    None) without a beam."""
     if beam_model is None:
-        return None
+        return None, None
     lmn1 = idg.subgrid_directions(nsub, grid.npix, grid.dl)
     ra, dec = lm_to_radec(lmn1[:, 0], lmn1[:, 1], grid.ra0, grid.dec0)
-    full = beam_model.jones(times, freq, np.append(ra, grid.ra0), np.append(dec, grid.dec0),
-                            stations=stations, dtype=np.complex128)
-    jones = full[..., :-1, :, :] @ basis_rotation(transport_angle(grid.ra0, grid.dec0, ra, dec))
-    if centre_correction:
-        jones = centre_inverse(full[..., -1, :, :])[..., None, :, :] @ jones
-    return jones
+    rot = basis_rotation(transport_angle(grid.ra0, grid.dec0, ra, dec))
+    jones = np.empty((stations.size, times.size, freq.size, ra.size, 2, 2), np.complex128)
+    left = (np.empty((stations.size, times.size, freq.size, 2, 2), np.complex128)
+            if centre_correction else None)
+    for it in range(times.size):  # one time at a time: no full-size temporaries
+        full = beam_model.jones(times[it:it + 1], freq, np.append(ra, grid.ra0),
+                                np.append(dec, grid.dec0), stations=stations,
+                                dtype=np.complex128)
+        turned = np.empty((stations.size * freq.size, ra.size, 2, 2), np.complex128)
+        idg.rotate_columns(full[:, 0, :, :-1].reshape(-1, ra.size, 2, 2), rot, turned)
+        jones[:, it] = turned.reshape(stations.size, freq.size, ra.size, 2, 2)
+        if left is not None:
+            left[:, it] = centre_inverse(full[:, 0, :, -1])
+    return jones, left
 
 
-def degrid_visibilities(grid: PixelGrid, channels: slice, beam_model, times: np.ndarray,
-                        freq: np.ndarray, stations: np.ndarray, xyz: np.ndarray,
-                        tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
+def degrid_visibilities(grid: PixelGrid, geometry: Geometry, channels: slice, beam_model,
+                        times: np.ndarray, freq: np.ndarray, stations: np.ndarray,
+                        xyz: np.ndarray, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
                         centre_correction: bool) -> np.ndarray:
     """Visibilities (nrow, nchan, 4) XX, XY, YX, YY (linear feeds, complex128) of the rows
     (time index ``tidx``, stations ``p``, ``q`` into ``xyz`` (ntime, nstation, 3) m) on the
-    channels ``freq`` (Hz), which are ``grid.iquv[channels]``."""
-    nsub = subgrid_size(grid)
-    jones = _subgrid_jones(grid, beam_model, nsub, times, freq, stations, centre_correction)
+    channels ``freq`` (Hz), which are ``grid.iquv[channels]``, with ``geometry``
+    (:func:`degrid_geometry`)."""
+    nsub = geometry.nsub
+    jones, left = _subgrid_jones(grid, beam_model, nsub, times, freq, stations,
+                                 centre_correction)
     # without a beam the direct path's identity Jones is the local basis: no transport
     sky = grid.iquv[channels] if jones is None else grid.transported(channels)
     vis = idg.degrid(sky, grid.dl, freq, xyz, tidx, p, q, jones, nsub=nsub,
-                     epsilon=grid.epsilon, centre=grid.centre, batch=DEGRID_BATCH)
+                     epsilon=grid.epsilon, support=geometry.support, jones_left=left,
+                     centre=grid.centre, batch=DEGRID_BATCH)
     return vis.reshape(tidx.size, freq.size, 4)

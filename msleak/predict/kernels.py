@@ -625,6 +625,19 @@ def _gather(gram, tidx, p, q, left, have_left, out):
                         out[r, c, 2 * a + b] = v[a, b]
 
 
+@nb.njit(inline="always", cache=True)
+def sandwich(a00, a01, a10, a11, s00, s01, s10, s11, b00, b01, b10, b11):
+    """Entries (00, 01, 10, 11) of A S B^H for 2 x 2 matrices A, S, B given by their
+    entries (B's not conjugated), for the kernels' per-direction and per-row products."""
+    m00 = a00 * s00 + a01 * s10
+    m01 = a00 * s01 + a01 * s11
+    m10 = a10 * s00 + a11 * s10
+    m11 = a10 * s01 + a11 * s11
+    c00, c01, c10, c11 = np.conj(b00), np.conj(b01), np.conj(b10), np.conj(b11)
+    return (m00 * c00 + m01 * c01, m00 * c10 + m01 * c11,
+            m10 * c00 + m11 * c01, m10 * c10 + m11 * c11)
+
+
 def gather_rows(gram: np.ndarray, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
                 jones_left: np.ndarray | None = None) -> np.ndarray:
     """Visibilities of MS rows from the matrices of :func:`predict_gram`.

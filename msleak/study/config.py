@@ -2,19 +2,55 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["StudyConfig", "FIELDS_OF_VIEW"]
+from msleak.errors import InputError
+
+__all__ = ["StudyConfig", "FIELDS_OF_VIEW", "RESOLUTIONS", "PAPER_UV_RANGE",
+           "OBSERVED_UV_RANGE", "SKY_FOV_DEG", "nyquist_npix"]
 
 #: (label, crop in pixels of the 50-pixel 15-deg cube): the paper's 15, 9 and 4 deg fields
 #: of view are 50, 28 and 16 pixels (0.3 deg pixels: 15, 8.4 and 4.8 deg a side).
 FIELDS_OF_VIEW = (("15deg", 50), ("9deg", 28), ("4deg", 16))
+#: ``--resolution`` of the study: the paper's sky and baselines, or those of observed data
+RESOLUTIONS = ("paper", "observed")
+#: baselines (wavelengths) gridded and in the power spectra, per resolution
+PAPER_UV_RANGE = (30.0, 180.0)
+OBSERVED_UV_RANGE = (30.0, 800.0)
+#: side of the study's sky cube, deg (the largest field of view)
+SKY_FOV_DEG = 15.0
+#: the paper's sky: pixels a side of the 15-deg cube
+_PAPER_NPIX = FIELDS_OF_VIEW[0][1]
+#: lower end of the 1D PS's k_perp range, Mpc^-1 (the paper's, msleak ps's default)
+_KPERP_1D_MIN = 0.02
+#: channels of the study's MSs and sky (``msleak simulate`` and ``msleak sky`` defaults)
+_FREQ_MIN_HZ, _CHAN_WIDTH_HZ, _NCHAN = 150e6, 195312.5, 50
+#: --quick: stations, hours, seconds per resolution; the observed set's baselines reach
+#: 800 wavelengths (CS002-CS004 and the CS02x/CS03x ring, 20 HBA fields)
+_QUICK = {"paper": {"stations": "CS00[1-7]HBA*,CS01[13]HBA*", "duration": 2.0,
+                    "interval": 600.0},
+          "observed": {"stations": "CS00[2-4]HBA*,CS0[23]*HBA*", "duration": 2.0,
+                       "interval": 600.0}}
+
+
+def nyquist_npix(fov_deg: float, uv_max: float) -> int:
+    """Pixels a side of a cube ``fov_deg`` wide whose pixels resolve baselines up to
+    ``uv_max`` wavelengths: pixel <= 1 / (2 uv_max) rad, so n = ceil(2 uv_max fov_rad)."""
+    return math.ceil(2.0 * uv_max * math.radians(fov_deg) - 1e-9)
 
 
 @dataclass
 class StudyConfig:
-    """Parameters of the study; ``quick`` shrinks stations, times and channels."""
+    """Parameters of the study; ``quick`` shrinks stations, times and channels.
+
+    ``resolution`` is ``"paper"`` (a 50-pixel 15-deg sky, baselines 30-180 wavelengths)
+    or ``"observed"`` (pixels that resolve 800 wavelengths, baselines 30-800, predicted by
+    image-domain gridding; docs/paper.md "Observation resolution"). ``sky_fov_deg``
+    (``"observed"`` only) shrinks the sky cube, keeping the pixel rule and scaling the
+    crops with it, for small test runs [default 15].
+    """
 
     outdir: Path
     quick: bool = False
@@ -30,10 +66,24 @@ class StudyConfig:
     nchan: int | None = None
     #: predict in complex128 arithmetic (docs/leakage.md, "The numerical floor")
     double: bool = True
+    resolution: str = "paper"
+    sky_fov_deg: float | None = None
+
+    def __post_init__(self):
+        if self.resolution not in RESOLUTIONS:
+            raise InputError(f"unknown resolution {self.resolution!r}: "
+                             f"{' or '.join(RESOLUTIONS)}")
+        if self.sky_fov_deg is not None:
+            if self.resolution == "paper":
+                raise InputError("the paper resolution keeps the paper's 15 deg sky; "
+                                 "sky_fov_deg needs resolution 'observed'")
+            if not 0 < self.sky_fov_deg <= SKY_FOV_DEG:
+                raise InputError(f"sky_fov_deg {self.sky_fov_deg:g}: must be within "
+                                 f"0..{SKY_FOV_DEG:g} deg")
 
     @property
     def simulate_args(self) -> list:
-        quick = {"stations": "CS00[1-7]HBA*,CS01[13]HBA*", "duration": 2.0, "interval": 600.0}
+        quick = _QUICK[self.resolution]
         given = {"stations": self.stations, "duration": self.duration_h,
                  "interval": self.interval_s}
         args = []
@@ -55,8 +105,83 @@ class StudyConfig:
         """File and column suffix of a realisation: none for the first seed."""
         return "" if seed == self.seed else f"_s{seed}"
 
+    # -- resolution ---------------------------------------------------------------------
+
+    @property
+    def uv_range(self) -> tuple[float, float]:
+        """Baselines (wavelengths) gridded and in the power spectra."""
+        return PAPER_UV_RANGE if self.resolution == "paper" else OBSERVED_UV_RANGE
+
+    @property
+    def sky_fov(self) -> float:
+        """Side of the sky cube, deg."""
+        return SKY_FOV_DEG if self.sky_fov_deg is None else float(self.sky_fov_deg)
+
+    @property
+    def sky_npix(self) -> int:
+        """Pixels a side of the sky cube: the paper's 50, or enough that the pixel
+        resolves the longest baseline (:func:`nyquist_npix`)."""
+        if self.resolution == "paper":
+            return _PAPER_NPIX
+        return nyquist_npix(self.sky_fov, self.uv_range[1])
+
+    @property
+    def fields_of_view(self) -> tuple:
+        """``(label, pixels a side)`` of the 15, 9 and 4 deg fields of view: the paper's
+        :data:`FIELDS_OF_VIEW`, or crops of the same sky angles (28 and 16 of the paper's
+        0.3-deg pixels, scaled with ``sky_fov_deg``) at the finer pixel, each the nearest
+        pixel count of the cube's parity, as ``msleak sky --crop --fov`` rounds."""
+        if self.resolution == "paper":
+            return FIELDS_OF_VIEW
+        from msleak.sky.cube import crop_npix_for_fov
+
+        npix = self.sky_npix
+        pixel = self.sky_fov / npix
+        return ((FIELDS_OF_VIEW[0][0], npix),) + tuple(
+            (label, crop_npix_for_fov(self.sky_fov * paper_npix / _PAPER_NPIX, pixel, npix))
+            for label, paper_npix in FIELDS_OF_VIEW[1:])
+
     def sky_args(self, seed: int) -> list:
         args = ["--seed", str(seed)]
+        if self.resolution != "paper":
+            args += ["--fov", f"{self.sky_fov:g}", "--npix", str(self.sky_npix)]
         if self.nchan is not None:
             args += ["--nchan", str(self.nchan)]
         return args
+
+    @property
+    def predict_args(self) -> list:
+        """Predict options of the resolution: the observed skies by image-domain gridding
+        (``--method auto``: degridding for skies of 6400 pixels or more) with a 6 GB
+        working set, so that a chunk holds many times and the w-layer FFTs of a large sky
+        are shared by all of them (docs/predict.md, "Speed")."""
+        if self.resolution == "paper":
+            return []
+        return ["--method", "auto", "--memory-limit", "6GB"]
+
+    @property
+    def grid_args(self) -> list:
+        """Grid options of the resolution (the paper's 30-180 is msleak grid's default)."""
+        if self.resolution == "paper":
+            return []
+        return ["--uv-range", ",".join(f"{x:g}" for x in self.uv_range)]
+
+    @property
+    def kperp_1d(self) -> tuple[float, float] | None:
+        """k_perp range (Mpc^-1) of the 1D PS: the paper's 0.02-0.1 (msleak ps's default,
+        None), or, observed, from 0.02 to the k_perp of the longest baseline at the band
+        centre (Planck18, as msleak ps), rounded up to 0.01: every gridded voxel."""
+        if self.resolution == "paper":
+            return None
+        from msleak.ps.cosmology import cosmo_at
+
+        nchan = _NCHAN if self.nchan is None else self.nchan
+        centre = _FREQ_MIN_HZ + 0.5 * (nchan - 1) * _CHAN_WIDTH_HZ
+        k_max = float(cosmo_at(centre).k_perp(self.uv_range[1]))
+        return _KPERP_1D_MIN, math.ceil(k_max * 100 - 1e-9) / 100
+
+    @property
+    def ps_args(self) -> list:
+        """ps options of the resolution: the 1D PS's k_perp range (:attr:`kperp_1d`)."""
+        k = self.kperp_1d
+        return [] if k is None else ["--kperp-1d", f"{k[0]:g},{k[1]:g}"]

@@ -3,17 +3,21 @@ msleak command line, run or, when up to date, skipped (:mod:`msleak.study.steps`
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from pathlib import Path
 
-from msleak.study.config import FIELDS_OF_VIEW, StudyConfig
+from msleak.errors import InputError
+from msleak.study.config import StudyConfig
 from msleak.study.report import write_report
 from msleak.study.steps import Step, StepRunner, predict_precision
 
-__all__ = ["study_steps", "run_study"]
+__all__ = ["study_steps", "run_study", "study_resolution", "STUDY_FILE"]
 
 log = logging.getLogger(__name__)
+#: the resolution of the study in OUTDIR (docs/paper.md "Observation resolution")
+STUDY_FILE = ".msleak-study.json"
 
 
 def _sky_steps(cfg: StudyConfig, sky: Path, fig: Path) -> tuple[list[Step], dict]:
@@ -26,8 +30,8 @@ def _sky_steps(cfg: StudyConfig, sky: Path, fig: Path) -> tuple[list[Step], dict
         plot = ["--plot", fig / "sky.png"] if not sfx else []
         steps.append(Step(f"sky{sfx}", ["sky", cube, *cfg.sky_args(seed), "--overwrite",
                                         *plot], outputs=[cube, *plot[1:]]))
-        for label, npix in FIELDS_OF_VIEW:
-            if npix == 50:
+        for label, npix in cfg.fields_of_view:
+            if npix == cfg.sky_npix:
                 crops[seed, label] = cube
                 continue
             crops[seed, label] = sky / f"sky_{label}{sfx}.fits"
@@ -44,12 +48,13 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
     fdir = Path(cfg.outdir) / fld
     ms = fdir / f"{fld}.ms"
     runs = [(seed, label, cfg.suffix(seed)) for seed in cfg.realisations
-            for label, _ in FIELDS_OF_VIEW]
+            for label, _ in cfg.fields_of_view]
     column = {(seed, label): f"MODEL_{label.upper()}{sfx.upper()}" for seed, label, sfx in runs}
     steps = [Step(f"simulate-{fld}", ["simulate", ms, "--field", fld, *cfg.simulate_args,
                                       "--overwrite"], outputs=[ms])]
-    predict = ["predict", ms, "--beam", cfg.beam, *predict_precision(cfg.double)]
-    grid = ["grid", ms, "--overwrite"]
+    predict = ["predict", ms, "--beam", cfg.beam, *predict_precision(cfg.double),
+               *cfg.predict_args]
+    grid = ["grid", ms, "--overwrite", *cfg.grid_args]
     for seed, label, sfx in runs:
         predict += ["--sky", crops[seed, label], "--column", column[seed, label]]
         grid += ["--column", column[seed, label], "-o", fdir / f"grid_{label}{sfx}.h5"]
@@ -73,7 +78,8 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
                        ["transform", fdir / f"grid_{label}{sfx}.h5", "-o", delay,
                         "--overwrite"],
                        inputs=[fdir / f"grid_{label}{sfx}.h5"], outputs=[delay]),
-                  Step(f"ps-{fld}-{label}{sfx}", ["ps", delay, "-o", ps, "--overwrite", *plot],
+                  Step(f"ps-{fld}-{label}{sfx}", ["ps", delay, "-o", ps, "--overwrite",
+                                                  *cfg.ps_args, *plot],
                        inputs=[delay], outputs=[ps])]
         ps_files.append(ps)
     leak_dir = fdir / "leakage"
@@ -87,12 +93,13 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
         steps += [
             Step(f"observed-grid-{fld}", ["grid", "--image", q_cube, "--image", u_cube,
                                           "--stokes", "Q,U", "--fov", "4", "-o", obs_grid,
-                                          "--overwrite"],
+                                          "--overwrite", *cfg.grid_args],
                  inputs=[q_cube, u_cube], outputs=[obs_grid]),
             Step(f"observed-transform-{fld}", ["transform", obs_grid, "-o", obs_delay,
                                                "--overwrite"],
                  inputs=[obs_grid], outputs=[obs_delay]),
-            Step(f"observed-ps-{fld}", ["ps", obs_delay, "-o", obs_ps, "--overwrite"],
+            Step(f"observed-ps-{fld}", ["ps", obs_delay, "-o", obs_ps, "--overwrite",
+                                        *cfg.ps_args],
                  inputs=[obs_delay], outputs=[obs_ps]),
         ]
         leak_args += ["--expected", str(obs_ps)]
@@ -112,13 +119,43 @@ def study_steps(cfg: StudyConfig) -> list[Step]:
     return steps
 
 
+def study_resolution(outdir: Path) -> str | None:
+    """The resolution of the study already in ``outdir`` (``OUTDIR/.msleak-study.json``;
+    ``"paper"`` for a study made before msleak recorded it), or None if there is none."""
+    out = Path(outdir)
+    path = out / STUDY_FILE
+    if path.exists():
+        try:
+            return str(json.loads(path.read_text())["resolution"])
+        except (ValueError, KeyError, TypeError):
+            raise InputError(f"{path} is unreadable; remove it, or give another "
+                             "OUTDIR") from None
+    if (out / ".msleak-steps.json").exists():
+        return "paper"
+    return None
+
+
+def _claim_outdir(cfg: StudyConfig, overwrite: bool) -> None:
+    """Refuse a study of another resolution in OUTDIR (its products have the same names)
+    unless ``overwrite``; record this study's resolution."""
+    out = Path(cfg.outdir)
+    made = study_resolution(out)
+    if made is not None and made != cfg.resolution and not overwrite:
+        raise InputError(f"{out} holds a --resolution {made} study; give another OUTDIR "
+                         f"for --resolution {cfg.resolution}, or --overwrite to replace it")
+    if made != cfg.resolution:
+        (out / STUDY_FILE).write_text(json.dumps({"resolution": cfg.resolution}) + "\n")
+
+
 def run_study(cfg: StudyConfig, invoke, overwrite: bool = False, workers: int = 1) -> Path:
     """Run (or resume) the study with ``invoke(args)`` running one msleak command line;
     ``overwrite`` reruns every step; at most ``workers`` steps run at once (``invoke`` must
-    then be thread-safe, e.g. :class:`msleak.study.steps.ProcessInvoker`). Returns the
-    path of ``report.md``."""
+    then be thread-safe, e.g. :class:`msleak.study.steps.ProcessInvoker`). A study of
+    another resolution already in ``cfg.outdir`` is refused (InputError) unless
+    ``overwrite``. Returns the path of ``report.md``."""
     out = Path(cfg.outdir)
     out.mkdir(parents=True, exist_ok=True)
+    _claim_outdir(cfg, overwrite)
     for sub in ("sky", "figures", *cfg.fields):
         (out / sub).mkdir(exist_ok=True)
     runner = StepRunner(out, overwrite=overwrite)

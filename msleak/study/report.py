@@ -11,7 +11,7 @@ from pathlib import Path
 
 from msleak import __version__
 from msleak.plot.ps import plot_ps1d
-from msleak.study.config import FIELDS_OF_VIEW, StudyConfig
+from msleak.study.config import StudyConfig
 
 __all__ = ["write_report"]
 
@@ -20,6 +20,35 @@ log = logging.getLogger(__name__)
 
 def _rel(path: Path, base: Path) -> str:
     return os.path.relpath(path, base)
+
+
+def _and(items: list[str]) -> str:
+    return ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _resolution_text(cfg: StudyConfig) -> str:
+    """How the study's sky is sampled, predicted and gridded (``--resolution``)."""
+    uv_min, uv_max = cfg.uv_range
+    fovs = cfg.fields_of_view
+    pixel = cfg.sky_fov / cfg.sky_npix
+    sides = _and([f"{n * pixel:.3g}" for _, n in fovs])
+    counts = _and([str(n) for _, n in fovs])
+    labels = _and([label.removesuffix("deg") for label, _ in fovs])
+    if cfg.resolution == "paper":
+        sky = (f"for fields of view of {labels} deg (the paper's {counts} pixels of "
+               f"{pixel:g} deg, i.e. {sides} deg a side)")
+        one_d = ""
+    else:
+        k = cfg.kperp_1d
+        sky = (f"at the resolution of observed LOFAR data, by image-domain gridding "
+               f"(msleak predict --method auto), for fields of view of {labels} deg "
+               f"({counts} pixels of {pixel * 60:.3g} arcmin, i.e. {sides} deg a side: "
+               f"pixels of at most 1/(2 x {uv_max:g}) rad resolve every baseline up to "
+               f"{uv_max:g} wavelengths)")
+        one_d = f" (the 1D PS over k_perp {k[0]:g}-{k[1]:g} Mpc^-1, every gridded baseline)"
+    return (f"{sky}, then gridded ({uv_min:g}-{uv_max:g} wavelengths, 16-wavelength "
+            f"cells), delay-transformed (Blackman-Harris) and turned into Stokes power "
+            f"spectra{one_d}.")
 
 
 def _stats_rows(path: Path) -> list[dict]:
@@ -33,7 +62,7 @@ def _extra_figures(cfg: StudyConfig, out: Path) -> dict:
     """1D PS of Q and U for the three fields of view, per field (docs/science.md section 8)."""
     made = {}
     for fld in cfg.fields:
-        inputs = [(out / fld / f"ps_{label}.h5", label) for label, _ in FIELDS_OF_VIEW]
+        inputs = [(out / fld / f"ps_{label}.h5", label) for label, _ in cfg.fields_of_view]
         inputs = [(p, lab) for p, lab in inputs if p.exists()]
         if not inputs:
             continue
@@ -109,16 +138,15 @@ def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
         "# Polarization leakage study",
         "",
         f"Made by msleak {__version__} on {time.strftime('%Y-%m-%d %H:%M')} "
-        f"({'quick, reduced size' if cfg.quick else 'full scale'}); this run took "
+        f"({'quick, reduced size' if cfg.quick else 'full scale'}"
+        f"{'' if cfg.resolution == 'paper' else ', --resolution ' + cfg.resolution}); "
+        "this run took "
         f"{seconds / 60:.1f} min (steps skipped as up to date are marked below).",
         "",
         "Method: Asad et al. (2018, MNRAS 476, 3051), as restated in msleak's docs. The "
         "same diffuse polarized sky (Q, U; differential Faraday rotation) is predicted "
         "through the per-station LOFAR HBA beam (EveryBeam model) with the beam at the "
-        "phase centre removed, for fields of view of 15, 9 and 4 deg (the paper's 50, 28 "
-        "and 16 pixels of 0.3 deg, i.e. 15, 8.4 and 4.8 deg a side), then gridded "
-        "(30-180 wavelengths, 16-wavelength cells), delay-transformed (Blackman-Harris) "
-        "and turned into Stokes power spectra. L_I = 100 sqrt(P_I / P_P). Sky "
+        f"phase centre removed, {_resolution_text(cfg)} L_I = 100 sqrt(P_I / P_P). Sky "
         f"realisations: {cfg.seeds} (seeds {', '.join(map(str, cfg.realisations))}), each "
         "through the same MSs and beams; figures show the first.",
         "",
@@ -148,7 +176,7 @@ def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
             lines += [f"![beam {fld}]({_rel(beam_png, out)})", ""]
         if fld in ps1d:
             lines += [f"![1D PS {fld}]({_rel(ps1d[fld], out)})", ""]
-        for label, _ in FIELDS_OF_VIEW:
+        for label, _ in cfg.fields_of_view:
             png = out / "figures" / f"ps_{fld}_{label}.png"
             if png.exists():
                 lines += [f"![2D PS {fld} {label}]({_rel(png, out)})", ""]
