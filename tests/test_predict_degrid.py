@@ -93,7 +93,7 @@ def test_transported_basis_is_needed_at_the_ncp(mss, monkeypatch):
                         lambda ra0, dec0, ra, dec: np.zeros(np.shape(ra)))
     with pytest.raises(InputError, match="structure finer than 64 directions"):
         _vis(ms, cube, "degrid")
-    monkeypatch.setattr(gridsky, "beam_support", lambda *args: 0.0)
+    monkeypatch.setattr(gridsky, "beam_support", lambda *args: (0.0, 0.0))
     assert _rel_rms(_vis(ms, cube, "degrid"), ref) > 1e-2
 
 
@@ -105,7 +105,7 @@ def test_subgrid_sized_from_the_beam(mss, monkeypatch):
     cube = _cube(ms, npix=50, fov=15.0)  # the study's sky: the beam spans more cells
     ref = _vis(ms, cube, "direct")
     sized = _rel_rms(_vis(ms, cube, "degrid", epsilon=1e-8), ref)
-    monkeypatch.setattr(gridsky, "beam_support", lambda *args: 0.0)
+    monkeypatch.setattr(gridsky, "beam_support", lambda *args: (0.0, 0.0))
     blind = _rel_rms(_vis(ms, cube, "degrid", epsilon=1e-8, nsub=24), ref)
     print(f"sized from the beam: {sized:.2e}, nsub 24 without the beam: {blind:.2e}")
     assert sized <= 2e-8
@@ -154,11 +154,11 @@ def test_auto_falls_back_to_direct_where_degrid_costs_more():
     assert not gridsky.worth_degridding(grid(80), g32, xyz, *two, freq)
     assert gridsky.worth_degridding(replace(grid(80), auto=False), g32, xyz, *two, freq)
     assert gridsky.subgrid_size(grid(80)) == gridsky.DEFAULT_NSUB
-    # a beam taking 5.8 cells: taper 6.08 + 1.5 + FREE_CELLS 6 + 5.8 = 19.4 -> 40
-    assert gridsky.subgrid_size(grid(80), 5.8) == 40
-    with pytest.raises(InputError, match="--nsub 24: epsilon 1e-06 and the beam's 5.8 cells"
-                       " need nsub >= 30"):
-        gridsky.subgrid_size(replace(grid(80), nsub=24), 5.8)
+    # a beam taking 8 cells: taper 6.08 + 1.5 + FREE_CELLS 4 + 8 = 19.6 -> 40
+    assert gridsky.subgrid_size(grid(80), 8.0) == 40
+    with pytest.raises(InputError, match="--nsub 24: epsilon 1e-06 and the beam's 8.0 cells"
+                       " need nsub >= 34"):
+        gridsky.subgrid_size(replace(grid(80), nsub=24), 8.0)
     many = (np.zeros(1000, int), np.arange(1000) % 2, 1 - np.arange(1000) % 2)
     assert not gridsky.worth_degridding(grid(80), g32, xyz, *many, freq)
     assert gridsky.worth_degridding(grid(120), g32, xyz, *many, freq)
@@ -232,3 +232,51 @@ def test_cli_nsub_too_small_is_refused(mss, tmp_path):
 
     with table(ms) as t:
         assert "MODEL_DATA" not in t.colnames()
+
+
+class _PhaseBeam:
+    """J(s) = exp(2 pi i k0 l / P) I (P the padded field): a beam whose spectrum is the
+    taper's shifted by k0 cells, so the products J_p J_q^H of two such stations take 2 k0."""
+
+    def __init__(self, grid, k0):
+        self.grid, self.k0 = grid, k0
+
+    def jones(self, times, freq, ra, dec, stations, dtype):
+        from msleak.predict.kernels import lmn_minus_one
+
+        big_p = 2 * self.grid.npix * self.grid.dl
+        l = lmn_minus_one(ra, dec, self.grid.ra0, self.grid.dec0)[:, 0]
+        out = np.zeros((stations.size, times.size, freq.size, ra.size, 2, 2), dtype)
+        phase = np.exp(2j * np.pi * self.k0 * l / big_p)
+        out[..., 0, 0] = out[..., 1, 1] = phase
+        return out
+
+
+def test_beam_support_of_a_known_beam():
+    """beam_support finds the 2 k0 cells of an analytic beam's spectrum (to the 1-cell
+    rounding of each station's half-width), 0 for a direction-independent beam."""
+    grid = gridsky.PixelGrid(iquv=np.zeros((1, 40, 40, 4)), psi=np.zeros((40, 40)),
+                             dl=np.radians(0.25), centre=19.5, ra0=0.3, dec0=0.8,
+                             epsilon=1e-6, nsub=None)
+    stations = np.arange(2)
+    for k0 in (0, 3, 6):
+        support, left = gridsky.beam_support(grid, _PhaseBeam(grid, k0), 0.0, 150e6,
+                                             stations, False)
+        assert 2 * k0 - 2 <= support <= 2 * k0 + 2, (k0, support)
+        assert left <= grid.epsilon
+
+
+def test_auto_predicts_directly_where_the_beam_cannot_be_degridded(mss, monkeypatch):
+    """A beam refused by beam_support: --method degrid refuses, --method auto predicts
+    the chunk directly (equal to the direct predict)."""
+    ms = mss["ncp"]
+    cube = _cube(ms, npix=80)
+    ref = _vis(ms, cube, "direct")
+
+    def refuse(*args):
+        raise InputError("--method degrid: the beam has structure finer than 64 directions")
+
+    monkeypatch.setattr(gridsky, "beam_support", refuse)
+    with pytest.raises(InputError, match="finer than 64"):
+        _vis(ms, cube, "degrid")
+    assert _rel_rms(_vis(ms, cube, "auto"), ref) <= 1e-12

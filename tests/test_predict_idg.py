@@ -190,6 +190,13 @@ def test_rotate_columns_and_jones_left_equal_matrix_products():
     b = idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, beam, nsub=32, epsilon=1e-6,
                    jones_left=left)
     assert _rel_rms(b, a) <= 1e-12
+    for shape in ((1, 1, FREQ.size), (4, 1, 1), (1, 2, 1)):  # size-1 axes broadcast
+        part = left[tuple(slice(0, n) for n in shape)]
+        folded = part[:, :, :, None] @ beam
+        a = idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, folded, nsub=32, epsilon=1e-6)
+        b = idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, beam, nsub=32, epsilon=1e-6,
+                       jones_left=part)
+        assert _rel_rms(b, a) <= 1e-12
     c = idg.degrid(sky, DL, FREQ, xyz, tidx, p, q, beam, nsub=32, epsilon=1e-6)
     assert _rel_rms(c, a) > 0.1
 
@@ -238,3 +245,22 @@ def test_known_leakage_of_a_diagonal_beam_against_ducc0():
     known = np.sum(np.abs(expected) ** 2) / np.sum(np.abs(v_q) ** 2)
     assert abs(leak / known - 1) <= 2 * eps
     assert leak > 1e-3  # the beams differ enough to leak
+
+
+def test_cis_equals_exp():
+    """The vectorized cos + i sin of the kernel equals numpy's exp(i g) to 1e-14 near 0
+    and to the argument's own rounding (1e-16 |g|) far from it."""
+    import numba
+
+    @numba.njit
+    def run(g, out):
+        for i in range(g.size):
+            out[i] = idg._cis(g[i])
+
+    g = np.concatenate([np.linspace(-10.0, 10.0, 20001),
+                        np.random.default_rng(0).uniform(-300.0, 300.0, 20000)])
+    out = np.empty(g.size, complex)
+    run(g, out)
+    err = np.abs(out - np.exp(1j * g))
+    assert err[:20001].max() <= 1e-14
+    assert np.all(err <= 1e-14 + 2e-16 * np.abs(g))

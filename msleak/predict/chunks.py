@@ -30,9 +30,10 @@ from msleak.io.ms import iter_rows, read_used_antennas
 from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
-from msleak.predict.gridsky import (DEGRID_BATCH, FALLBACK_MAX_PIXELS, PIXEL_BEAM_BYTES,
-                                   PLAN_NSUB, degrid_geometry, degrid_visibilities,
-                                   worth_degridding)
+from msleak.errors import InputError
+from msleak.predict.gridsky import (DEGRID_BATCH, DEGRID_PIXEL_BYTES, FALLBACK_MAX_PIXELS,
+                                   PIXEL_BEAM_BYTES, PLAN_NSUB, degrid_geometry,
+                                   degrid_visibilities, worth_degridding)
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
 
 __all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time", "plan_chunks"]
@@ -224,8 +225,9 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
     and the kernel's scratch memory are the fixed part."""
     direct = [comp.skies[j] for j in plan.active if comp.skies[j].grid is None]
     pixel = [comp.skies[j] for j in plan.active if comp.skies[j].grid is not None]
-    # a degridded chunk takes complex128 Jones at nsub^2 directions (three copies) and
-    # transforms DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's
+    # a degridded chunk takes complex128 Jones at nsub^2 directions (one copy, built per
+    # time), the sky's w-layer grids (DEGRID_PIXEL_BYTES per pixel) and transforms
+    # DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's
     # fallback, below FALLBACK_MAX_PIXELS; rows whose UVW are not antenna-based) takes the
     # beam at every pixel, a few times at once within PIXEL_BEAM_BYTES
     # (_pixel_time_blocks), and the direct kernel's scratch
@@ -233,6 +235,7 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
     widest = max([s.ndir for s in pixel if s.grid.auto and s.grid.npix ** 2
                   < FALLBACK_MAX_PIXELS], default=0)
     fixed = (comp.nbytes + nrows * 28 + 128 * DEGRID_BATCH * nsub ** 2
+             + DEGRID_PIXEL_BYTES * max([s.ndir for s in pixel], default=0)
              + (PIXEL_BEAM_BYTES if widest else 0)
              + kernels.scratch_bytes(nstation, max(comp.ndir, widest),
                                      sum(s.ndir for s in direct) + widest, nchan, dtype))
@@ -278,8 +281,7 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
     fast = np.flatnonzero(~off) if off.any() else slice(None)
     add_time(timings, "uvw", tick)
     rows = (tidx[fast], p[fast], q[fast])
-    geometry = [degrid_geometry(sky.grid, beam_model, times, freq, stations,
-                                centre_correction)
+    geometry = [_geometry(sky.grid, beam_model, times, freq, stations, centre_correction)
                 if sky.grid is not None and not off.all() else None for _, sky in skies]
     use_degrid = [g is not None and worth_degridding(sky.grid, g, xyz, *rows, freq)
                   for g, (_, sky) in zip(geometry, skies)]
@@ -328,6 +330,19 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
             add_time(timings, "per_baseline", tick)
         del jones
     return outs, int(off.sum())
+
+
+def _geometry(grid, beam_model, times, freq, stations, centre_correction):
+    """:func:`msleak.predict.gridsky.degrid_geometry`; with ``method="auto"`` a beam that
+    cannot be degridded gives None (the chunk is summed directly, logged) instead of the
+    refusal."""
+    try:
+        return degrid_geometry(grid, beam_model, times, freq, stations, centre_correction)
+    except InputError as err:
+        if not grid.auto:
+            raise
+        log.warning("%s; --method auto predicts this chunk directly", err)
+        return None
 
 
 def _pixel_sky(sky, geometry, beam_model, fmeta, times: np.ndarray,

@@ -31,7 +31,7 @@ from msleak.predict.kernels import lmn_minus_one
 __all__ = ["PixelGrid", "Geometry", "pixel_grid", "choose_method", "worth_degridding",
            "beam_support", "subgrid_size", "degrid_geometry", "degrid_visibilities",
            "AUTO_MIN_PIXELS", "FALLBACK_MAX_PIXELS", "DEFAULT_NSUB", "FREE_CELLS",
-           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "METHODS"]
+           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "DEGRID_PIXEL_BYTES", "METHODS"]
 
 METHODS = ("auto", "direct", "degrid")
 #: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
@@ -43,9 +43,14 @@ FALLBACK_MAX_PIXELS = 4 * AUTO_MIN_PIXELS
 DEFAULT_NSUB = 32
 #: uv cells per side a chosen subgrid keeps, beyond the taper and the beam, for a chunk's
 #: uv spread and w residual (docs/predict.md, "Subgrid size from the beam")
-FREE_CELLS = 6.0
-#: subgrid size the memory planner assumes when it is chosen from the beam
+FREE_CELLS = 4.0
+#: subgrid size the memory planner assumes when it is chosen from the beam (a larger one
+#: is degridded a few times at a time, :func:`degrid_visibilities`)
 PLAN_NSUB = 48
+#: memory of a degridded sky per pixel besides the chunk's (bytes): the w-layer grids and
+#: the sky's brightness entries (:class:`msleak.predict.idg._SkyGrids`), one channel of
+#: the transported sky
+DEGRID_PIXEL_BYTES = 480
 #: beam at every pixel of a pixel sky summed directly: at most this many bytes at once
 PIXEL_BEAM_BYTES = 512 * 2**20
 #: directions per axis at which the beam's spectrum is measured
@@ -257,47 +262,56 @@ def subgrid_size(grid: PixelGrid, support: float = 0.0) -> int:
 
 
 def beam_support(grid: PixelGrid, beam_model, time: float, freq: float,
-                 stations: np.ndarray, centre_correction: bool) -> float:
+                 stations: np.ndarray, centre_correction: bool) -> tuple[float, float]:
     """uv cells per side (of 1 / P, P the padded field) that the spectrum of the beam
-    products J'_p J'_q^H takes, measured at one time and frequency; 0 without a beam.
+    products J'_p J'_q^H takes, measured at one time and frequency, and the part t(r_p)
+    of the spectrum's norm left beyond it (largest over stations); (0, 0) without a beam.
 
     Per station, the Jones matrices J' that :func:`degrid_visibilities` uses are taken at
     64 x 64 directions across the padded field, multiplied by the degridder's taper T and
     Fourier transformed. With t(r) the part of the spectrum's norm outside the square of
     half-width r, r_p is the smallest r with t(r) <= epsilon, or where t, below 1e-3,
     has reached a slowly decaying floor (t(r) <= 10 t(r + 4); EveryBeam's LOFAR element
-    response has one, a kink at the zenith, docs/predict.md). T alone takes
-    :func:`msleak.predict.idg.taper_halfwidth` cells h, so J'_p takes r_p - h, and a
-    product of two stations twice the largest of those. A beam whose r_p comes within 4
+    response has one, a kink at the zenith, docs/predict.md). T alone, measured the same
+    way, takes r_T cells, so J'_p takes r_p - r_T, and a product of two stations twice the
+    largest of those. A beam whose r_p comes within 4
     cells of the probe's 32 has structure the subgrid cannot hold: refused
     (InputError)."""
     if beam_model is None:
-        return 0.0
+        return 0.0, 0.0
     jones, left = _subgrid_jones(grid, beam_model, _PROBE, np.array([time]),
                                  np.array([freq]), stations, centre_correction)
     jones = jones[:, 0, 0] if left is None else left[:, 0, 0, None] @ jones[:, 0, 0]
     t1 = idg.taper_1d(_PROBE, idg.taper_beta(grid.epsilon))
-    field = jones.reshape(-1, _PROBE, _PROBE, 4) * np.outer(t1, t1)[None, :, :, None]
-    power = np.sum(np.abs(np.fft.fft2(field, axes=(1, 2))) ** 2, axis=-1)
-    k = np.abs(np.fft.fftfreq(_PROBE, 1.0 / _PROBE))
-    radius = np.maximum(k[:, None], k[None, :]).astype(np.int64).ravel()
-    nring = _PROBE // 2 + 1
-    rings = np.stack([np.bincount(radius, weights=pw.ravel(), minlength=nring)
-                      for pw in power])
-    outside = np.cumsum(rings[:, ::-1], axis=1)[:, ::-1]        # outside[r] = sum_{>= r}
-    tail = np.sqrt(np.append(outside[:, 1:], np.zeros((len(rings), 1)), axis=1)
-                   / outside[:, :1])
-    ahead = np.append(tail[:, 4:], np.zeros((len(rings), 4)), axis=1)
+    taper = np.outer(t1, t1)
+    tail = _spectral_tail(jones.reshape(-1, _PROBE, _PROBE, 4) * taper[None, :, :, None])
+    r_taper = int(np.argmax(_spectral_tail(taper[None, :, :, None])[0] <= grid.epsilon))
+    ahead = np.append(tail[:, 4:], np.zeros((len(tail), 4)), axis=1)
     done = (tail <= grid.epsilon) | ((tail <= _FLOOR) & (tail <= 10.0 * ahead))
-    r_p = np.argmax(done, axis=1)                                # done[:, -1] is True
-    worst = float(np.max(tail[np.arange(len(rings)), r_p]))
+    r_p = np.argmax(done, axis=1)                # a station with no response: r_p = 0
+    worst = float(np.nanmax(tail[np.arange(len(tail)), r_p], initial=0.0))
     r = int(np.max(r_p))
     if r >= _PROBE // 2 - 4:
         raise InputError(f"--method degrid: the beam has structure finer than "
                          f"{_PROBE} directions across the padded "
                          f"{np.degrees(idg.PAD * grid.npix * grid.dl):.1f} deg field resolve "
                          f"({worst:.1e} of it left); use --method direct")
-    return 2.0 * max(0.0, r - idg.taper_halfwidth(grid.epsilon))
+    return 2.0 * max(0, r - r_taper), worst
+
+
+def _spectral_tail(field: np.ndarray) -> np.ndarray:
+    """t[i, r]: the part of the norm of the 2D spectrum of ``field[i]`` (n, n, entries)
+    outside the square of half-width r cells, r = 0..n/2."""
+    n = field.shape[1]
+    power = np.sum(np.abs(np.fft.fft2(field, axes=(1, 2))) ** 2, axis=-1)
+    k = np.abs(np.fft.fftfreq(n, 1.0 / n))
+    radius = np.maximum(k[:, None], k[None, :]).astype(np.int64).ravel()
+    rings = np.stack([np.bincount(radius, weights=pw.ravel(), minlength=n // 2 + 1)
+                      for pw in power])
+    outside = np.cumsum(rings[:, ::-1], axis=1)[:, ::-1]        # outside[r] = sum_{>= r}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.append(outside[:, 1:], np.zeros((len(rings), 1)), axis=1)
+                       / outside[:, :1])
 
 
 #: geometries already logged in this process (one line per sky size and result)
@@ -306,11 +320,15 @@ _LOGGED: set = set()
 
 def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.ndarray,
                     stations: np.ndarray, centre_correction: bool) -> Geometry:
-    """The :class:`Geometry` of a chunk: the beam's support measured at the chunk's middle
-    time and highest frequency, the subgrid size from it (:func:`subgrid_size`); logged
-    once per sky size and result."""
-    support = beam_support(grid, beam_model, float(times[times.size // 2]),
-                           float(np.max(freq)), stations, centre_correction)
+    """The :class:`Geometry` of a chunk: the beam's support measured at the chunk's first,
+    middle and last times and highest frequency (the largest), the subgrid size from it
+    (:func:`subgrid_size`); logged once per sky size and result, with the part of the
+    beam's spectrum beyond the support when that is above epsilon (a floor of the beam
+    model, docs/predict.md)."""
+    probes = [beam_support(grid, beam_model, float(t), float(np.max(freq)), stations,
+                           centre_correction)
+              for t in np.unique(times[[0, times.size // 2, -1]])]
+    support, left = max(p[0] for p in probes), max(p[1] for p in probes)
     geometry = Geometry(nsub=subgrid_size(grid, support), support=support)
     key = (grid.npix, grid.dl, grid.epsilon, geometry)
     if key not in _LOGGED:
@@ -318,6 +336,11 @@ def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.nda
         log.info("degrid %d x %d pixels: the beam takes %.1f uv cells per side at %.3f MHz, "
                  "subgrids of %d x %d", grid.npix, grid.npix, support, np.max(freq) / 1e6,
                  geometry.nsub, geometry.nsub)
+        if left > grid.epsilon:
+            log.info("degrid %d x %d pixels: the beam's spectrum keeps %.1e of its norm "
+                        "beyond the subgrid's reach (a floor of the beam model, above "
+                        "epsilon %g; docs/predict.md)", grid.npix, grid.npix, left,
+                        grid.epsilon)
     return geometry
 
 
@@ -355,11 +378,24 @@ def degrid_visibilities(grid: PixelGrid, geometry: Geometry, channels: slice, be
     channels ``freq`` (Hz), which are ``grid.iquv[channels]``, with ``geometry``
     (:func:`degrid_geometry`)."""
     nsub = geometry.nsub
-    jones, left = _subgrid_jones(grid, beam_model, nsub, times, freq, stations,
-                                 centre_correction)
-    # without a beam the direct path's identity Jones is the local basis: no transport
-    sky = grid.iquv[channels] if jones is None else grid.transported(channels)
-    vis = idg.degrid(sky, grid.dl, freq, xyz, tidx, p, q, jones, nsub=nsub,
-                     epsilon=grid.epsilon, support=geometry.support, jones_left=left,
-                     centre=grid.centre, batch=DEGRID_BATCH)
-    return vis.reshape(tidx.size, freq.size, 4)
+    # a subgrid larger than the memory planner assumed: fewer times and subgrids at once
+    shrink = min(1.0, (PLAN_NSUB / nsub) ** 2)
+    block = max(1, int(times.size * shrink))
+    out = np.empty((tidx.size, freq.size, 4), dtype=np.complex128)
+    for t0 in range(0, times.size, block):
+        t1 = min(times.size, t0 + block)
+        rows = np.flatnonzero((tidx >= t0) & (tidx < t1))
+        jones, left = _subgrid_jones(grid, beam_model, nsub, times[t0:t1], freq, stations,
+                                     centre_correction)
+        for c in range(freq.size):  # one channel at a time: one transported copy
+            channel = slice(channels.start + c, channels.start + c + 1)
+            # without a beam the direct path's identity Jones is the local basis
+            sky = grid.iquv[channel] if jones is None else grid.transported(channel)
+            vis = idg.degrid(sky, grid.dl, freq[c:c + 1], xyz[t0:t1], tidx[rows] - t0,
+                             p[rows], q[rows], None if jones is None else jones[:, :, c:c + 1],
+                             nsub=nsub, epsilon=grid.epsilon, support=geometry.support,
+                             jones_left=None if left is None else left[:, :, c:c + 1],
+                             centre=grid.centre,
+                             batch=max(1, int(DEGRID_BATCH * shrink)))
+            out[rows, c] = vis.reshape(rows.size, 4)
+    return out

@@ -230,7 +230,7 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
     """Read the metadata of ``ms``, select its groups and prepare the skies (no writes);
     ``double_column``: the columns are, or are created, complex128; ``method``: the
     keywords ``method``, ``epsilon``, ``nsub`` of :func:`msleak.predict.engine.predict`."""
-    method = dict(method or {"method": "direct"})
+    method = dict(method or {"method": "auto"})
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
     _check_new_columns(ms, [t.column for t in targets if t.column is not None], double_column)
