@@ -357,11 +357,11 @@ def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations
     jones = np.empty((stations.size, times.size, freq.size, ra.size, 2, 2), np.complex128)
     left = (np.empty((stations.size, times.size, freq.size, 2, 2), np.complex128)
             if centre_correction else None)
+    turned = np.empty((stations.size * freq.size, ra.size, 2, 2), np.complex128)
     for it in range(times.size):  # one time at a time: no full-size temporaries
         full = beam_model.jones(times[it:it + 1], freq, np.append(ra, grid.ra0),
                                 np.append(dec, grid.dec0), stations=stations,
                                 dtype=np.complex128)
-        turned = np.empty((stations.size * freq.size, ra.size, 2, 2), np.complex128)
         idg.rotate_columns(full[:, 0, :, :-1].reshape(-1, ra.size, 2, 2), rot, turned)
         jones[:, it] = turned.reshape(stations.size, freq.size, ra.size, 2, 2)
         if left is not None:

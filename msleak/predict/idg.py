@@ -344,28 +344,18 @@ def _subgrid_dft(sub, starts, k0u, k0v, rows, uvw, du, lmn1, taper, jones, has_b
             out[row, c, 1, 1] = acc3
 
 
-def _check_jones(jones, nst: int, nt: int, nchan: int, nsub: int) -> tuple:
-    """(Jones array for the kernel, whether a beam is given); refuses a wrong shape."""
-    if jones is None:
-        return np.zeros((1, 1, 1, 1, 2, 2), dtype=np.complex128), False
-    jones = np.ascontiguousarray(jones, dtype=np.complex128)
-    if jones.ndim != 6 or jones.shape[3:] != (nsub * nsub, 2, 2) or any(
-            jones.shape[a] not in (1, n) for a, n in enumerate((nst, nt, nchan))):
-        raise ValueError(f"jones has shape {jones.shape}, expected ({nst} | 1, {nt} | 1, "
-                         f"{nchan} | 1, {nsub * nsub}, 2, 2)")
-    return jones, True
-
-
-def _check_left(left, nst: int, nt: int, nchan: int) -> tuple:
-    """(correction array for the kernel, whether one is given); refuses a wrong shape."""
-    if left is None:
-        return np.zeros((1, 1, 1, 2, 2), dtype=np.complex128), False
-    left = np.ascontiguousarray(left, dtype=np.complex128)
-    if left.ndim != 5 or left.shape[3:] != (2, 2) or any(
-            left.shape[a] not in (1, n) for a, n in enumerate((nst, nt, nchan))):
-        raise ValueError(f"jones_left has shape {left.shape}, expected ({nst} | 1, {nt} | 1, "
-                         f"{nchan} | 1, 2, 2)")
-    return left, True
+def _per_station(name: str, array, nst: int, nt: int, nchan: int, tail: tuple) -> tuple:
+    """(``array`` (nst | 1, nt | 1, nchan | 1, *tail) as complex128 for the kernels,
+    whether it is given); None gives a size-1 placeholder; refuses a wrong shape."""
+    if array is None:
+        return np.zeros((1, 1, 1) + tuple(1 if n > 2 else n for n in tail),
+                        dtype=np.complex128), False
+    array = np.ascontiguousarray(array, dtype=np.complex128)
+    if array.shape[3:] != tail or any(
+            array.shape[a] not in (1, n) for a, n in enumerate((nst, nt, nchan))):
+        raise ValueError(f"{name} has shape {array.shape}, expected ({nst} | 1, {nt} | 1, "
+                         f"{nchan} | 1, {', '.join(map(str, tail))})")
+    return array, True
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
@@ -444,8 +434,9 @@ def degrid(brightness: np.ndarray, dl: float, freq: np.ndarray, xyz: np.ndarray,
     lmn1 = subgrid_directions(nsub, npix, dl)
     xyz = np.asarray(xyz, dtype=np.float64)
     tidx, p, q = (np.ascontiguousarray(a, dtype=np.int64) for a in (tidx, p, q))
-    jones, has_beam = _check_jones(jones, xyz.shape[1], xyz.shape[0], nchan, nsub)
-    left, has_left = _check_left(jones_left, xyz.shape[1], xyz.shape[0], nchan)
+    nst, nt = xyz.shape[1], xyz.shape[0]
+    jones, has_beam = _per_station("jones", jones, nst, nt, nchan, (nsub * nsub, 2, 2))
+    left, has_left = _per_station("jones_left", jones_left, nst, nt, nchan, (2, 2))
     cx = (npix - 1) / 2.0 if centre is None else float(centre)
     dw = w_layer_width(nsub, npix, dl, epsilon, support)
     beta = taper_beta(epsilon)
