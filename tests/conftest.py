@@ -54,6 +54,26 @@ def pytest_unconfigure(config):
         config_home.cleanup()
 
 
+#: the test files that run longest (whole studies, killed and resumed runs, the CLI fuzz,
+#: peers' chains: 14-90 s each on 2 cores), longest first
+LONG_FILES = ("test_paper.py", "test_safety_kill.py", "test_forecast.py", "test_fuzz_cli.py",
+              "test_cli_contract.py", "test_paper_resolution.py", "test_crosscheck.py",
+              "test_docs_api.py", "test_parallel_local.py", "test_grid_memory.py",
+              "test_predict_multisky.py", "test_parallel_cluster.py", "test_beam_basis.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    """In pytest-xdist workers (scripts/test: ``--dist loadfile --no-loadscope-reorder``):
+    the files of :data:`LONG_FILES` first, in that order, then the others as collected (the
+    tests of a file keep their order). The workers take whole files in this order, so the
+    short files fill in at the end and both finish at about the same time. Every worker
+    collects the same order, as xdist requires."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    rank = {name: k for k, name in enumerate(LONG_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
 SMALL_MS_PARAMS = dict(field="3c196", duration=4 * 120 / 3600, interval=120.0,
                        freq_min=150e6, nchan=4, chan_width=195312.5,
                        stations="CS00[1-3]HBA*")

@@ -96,7 +96,7 @@ def _cases():
     def _(ms, tmp):
         return ["predict", tmp / "nope.ms", "--sky", _sky(tmp, ms), "--beam", "none"]
 
-    @add("predict-file-not-ms", "is a file")
+    @add("predict-file-not-ms", "is a text file, not a Measurement Set")
     def _(ms, tmp):
         (tmp / "file.ms").write_text("hello")
         return ["predict", tmp / "file.ms", "--sky", _sky(tmp, ms), "--beam", "none"]
@@ -380,22 +380,134 @@ def test_damaged_product(products, tmp_path, command, kind, damage):
     src = tmp_path / f"{kind}.h5"
     if damage == "truncated":
         _truncate(shutil.copy(products / f"{kind}.h5", src), 3000)
-        pattern = "not a readable msleak product"
+        pattern = "is a damaged or truncated HDF5 file ("
     elif damage == "garbage":
-        src.write_bytes(os.urandom(5000))
-        pattern = "not a readable msleak product"
+        src.write_bytes(b"\0" + os.urandom(4999))
+        pattern = "is a binary file of an unknown format, not a"
     elif damage == "wrong-kind":
         other = {"uv": "ps", "delay": "uv", "ps": "delay"}[kind]
         shutil.copy(products / f"{other}.h5", src)
-        pattern = "product, expected"
+        pattern = "product), not a" if other != "ps" else "power-spectrum product, not a"
     else:
-        pattern = "no such file"
+        pattern = "does not exist; make a"
     out = ["-o", str(tmp_path / ("out" if command == "leakage" else "out.h5"))]
     r = CliRunner().invoke(cli, [command, str(src), *out])
     assert r.exit_code == 2, r.output
     last = r.output.strip().splitlines()[-1]
     assert last.startswith(("msleak: error:", "Error:")) and "Traceback" not in r.output
     assert pattern in r.output, r.output
+
+
+# what every product reader says of an input of the wrong kind: {p} is the input's path
+_NEEDS = {"transform": "uv cube (grid product)", "ps": "delay cube (transform product)",
+          "leakage": "power-spectrum product"}
+_WRONG_INPUTS = {
+    ("transform", "ms"): "{p} is a Measurement Set, not a uv cube (grid product); make one "
+                         "with `msleak grid {p} -o grid.h5`",
+    ("transform", "fits"): "{p} is a FITS file, not a uv cube (grid product); make one with "
+                           "`msleak grid --image {p} -o grid.h5`",
+    ("transform", "ps.h5"): "{p} is a power-spectrum product, not a uv cube (grid product); "
+                            "make one with `msleak grid MS -o grid.h5`",
+    ("transform", "text"): "{p} is a text file, not a uv cube (grid product); make one with "
+                           "`msleak grid MS -o grid.h5`",
+    ("transform", "missing"): "{p} does not exist; make a uv cube (grid product) with "
+                              "`msleak grid MS -o grid.h5`",
+    ("ps", "ms"): "{p} is a Measurement Set, not a delay cube (transform product); make one "
+                  "with `msleak grid {p} -o grid.h5`, then `msleak transform grid.h5 -o "
+                  "delay.h5`",
+    ("ps", "fits"): "{p} is a FITS file, not a delay cube (transform product); make one with "
+                    "`msleak grid --image {p} -o grid.h5`, then `msleak transform grid.h5 -o "
+                    "delay.h5`",
+    ("ps", "uv.h5"): "{p} is a uv cube (grid product), not a delay cube (transform product); "
+                     "make one with `msleak transform {p} -o delay.h5`",
+    ("ps", "ps.h5"): "{p} is a power-spectrum product, not a delay cube (transform product); "
+                     "make one with `msleak transform grid.h5 -o delay.h5`",
+    ("leakage", "ms"): "{p} is a Measurement Set, not a power-spectrum product; make one with "
+                       "`msleak grid {p} -o grid.h5`, then `msleak transform grid.h5 -o "
+                       "delay.h5`, then `msleak ps delay.h5 -o ps.h5`",
+    ("leakage", "fits"): "{p} is a FITS file, not a power-spectrum product; make one with "
+                         "`msleak grid --image {p} -o grid.h5`, then `msleak transform grid.h5 "
+                         "-o delay.h5`, then `msleak ps delay.h5 -o ps.h5`",
+    ("leakage", "delay.h5"): "{p} is a delay cube (transform product), not a power-spectrum "
+                             "product; make one with `msleak ps {p} -o ps.h5`",
+    ("leakage", "uv.h5"): "{p} is a uv cube (grid product), not a power-spectrum product; "
+                          "make one with `msleak transform {p} -o delay.h5`, then `msleak ps "
+                          "delay.h5 -o ps.h5`",
+}
+
+
+def _wrong_input(what, products, ms, tmp_path) -> Path:
+    """An input of the kind ``what``: an MS, a FITS file, a text file, a missing path, or
+    one of the ``products`` (uv.h5, delay.h5, ps.h5)."""
+    if what == "ms":
+        return Path(ms)
+    if what == "fits":
+        from astropy.io import fits
+
+        fits.PrimaryHDU(np.zeros((2, 4, 4), np.float32)).writeto(tmp_path / "cube.fits")
+        return tmp_path / "cube.fits"
+    if what == "text":
+        (tmp_path / "notes.txt").write_text("not a product\n")
+        return tmp_path / "notes.txt"
+    if what == "missing":
+        return tmp_path / "missing.h5"
+    return products / what
+
+
+def _reader(command):
+    """The library function behind ``command`` that opens its product input."""
+    import msleak
+
+    return {"transform": msleak.transform, "ps": msleak.power_spectrum,
+            "leakage": msleak.leakage}[command]
+
+
+@pytest.mark.parametrize("command,what", sorted(_WRONG_INPUTS))
+def test_wrong_input_named_with_its_maker(products, _small_lofar_ms_master, tmp_path,
+                                          command, what):
+    """A product reader given an MS, a FITS cube, another product kind, a text file or a
+    missing path says what it got and which command makes what it needs."""
+    import re
+
+    from msleak.errors import InputError
+
+    src = _wrong_input(what, products, _small_lofar_ms_master, tmp_path)
+    expected = _WRONG_INPUTS[command, what].format(p=src)
+    with pytest.raises(InputError, match=f"^{re.escape(expected)}$"):
+        _reader(command)(src)
+
+
+@pytest.mark.parametrize("command,what", [(c, w) for c, w in sorted(_WRONG_INPUTS)
+                                          if w in ("ms", "fits", "uv.h5", "delay.h5")])
+def test_wrong_input_cli_one_line(products, _small_lofar_ms_master, tmp_path, command, what):
+    """The same through the command line: exit status 2, the one line, no traceback."""
+    src = _wrong_input(what, products, _small_lofar_ms_master, tmp_path)
+    out = tmp_path / ("out" if command == "leakage" else "out.h5")
+    r = CliRunner().invoke(cli, [command, str(src), "-o", str(out)])
+    assert r.exit_code == 2, r.output
+    assert r.output.strip().splitlines() == [
+        "msleak: error: " + _WRONG_INPUTS[command, what].format(p=src)], r.output
+    assert not out.exists()
+
+
+_NOT_AN_MS = ("{p} {what}, not a Measurement Set (no casacore table there); give an MS, "
+              "e.g. one `msleak simulate OUT.ms` makes")
+
+
+@pytest.mark.parametrize("command", ["grid", "predict", "beam"])
+@pytest.mark.parametrize("what, words", [("uv.h5", "is a uv cube (grid product)"),
+                                         ("fits", "is a FITS file"),
+                                         ("text", "is a text file")])
+def test_ms_reader_names_what_it_got(products, _small_lofar_ms_master, tmp_path, command,
+                                     what, words):
+    """An MS reader given a product, a FITS cube or a text file says which it got."""
+    src = _wrong_input(what, products, _small_lofar_ms_master, tmp_path)
+    args = {"grid": ["-o", str(tmp_path / "g.h5")], "beam": ["-o", str(tmp_path / "b.png")],
+            "predict": ["--sky", str(src), "--beam", "none"]}[command]
+    r = CliRunner().invoke(cli, [command, str(src), *args])
+    assert r.exit_code == 2, r.output
+    assert r.output.strip().splitlines() == [
+        "msleak: error: " + _NOT_AN_MS.format(p=src, what=words)], r.output
 
 
 def test_nan_in_data_is_dropped_not_propagated(small_lofar_ms, tmp_path):

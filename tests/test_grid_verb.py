@@ -273,3 +273,27 @@ def test_history_chain_holds_predict_then_grid(tmp_path):
     assert at_predict and at_state, chain
     assert chain[-1].endswith("msleak grid " + " ".join(grid[2:]))
     assert at_predict[0] < at_state[0] < len(chain) - 1
+
+
+def test_rows_crossing_the_uv_range_are_counted(random_ms):
+    """A row whose baseline is inside the uv range in some channels and outside in others
+    (it enters or leaves the cube mid-band, a floor at high k_par, docs/ps.md) is counted
+    in ``n_rows_crossing_uv_range``; the count is computed here from UVW and the channel
+    frequencies (no sample of this MS is flagged)."""
+    with pt.table(str(random_ms), ack=False) as t:
+        uvw, a1, a2 = t.getcol("UVW"), t.getcol("ANTENNA1"), t.getcol("ANTENNA2")
+    with pt.table(f"{random_ms}/SPECTRAL_WINDOW", ack=False) as t:
+        freq = t.getcell("CHAN_FREQ", 0)
+    length = np.hypot(uvw[:, 0], uvw[:, 1])[a1 != a2, None] * freq[None, :] / 299792458.0
+    # a lower limit inside the band of a mid-length baseline: it crosses it
+    mid = length[:, length.shape[1] // 2]
+    lo = float(np.sort(mid)[mid.size // 2]) - 1e-9
+    inside = (length >= lo) & (length <= 200.0)
+    expected = int(np.count_nonzero(inside.any(axis=1) & ~inside.all(axis=1)))
+    assert expected > 0
+    cube = msleak.grid(random_ms, uv_range=(lo, 200.0), gridder="cell")
+    assert cube.attrs["n_rows_crossing_uv_range"] == expected
+    assert msleak.grid(random_ms, uv_range=UV, gridder="cell").attrs[
+        "n_rows_crossing_uv_range"] == np.count_nonzero(
+            ((length >= 1) & (length <= 200)).any(axis=1)
+            & ~((length >= 1) & (length <= 200)).all(axis=1))

@@ -160,11 +160,11 @@ def test_usage_errors_exit_2(products, tmp_path, extra, msg):
 
 def test_bad_files_exit_2(products, tmp_path):
     r = run(tmp_path / "nope.h5", "-o", tmp_path / "o")
-    assert r.exit_code == 2 and "no such file" in r.stderr
+    assert r.exit_code == 2 and "nope.h5 does not exist" in r.stderr
     out = tmp_path / "o"
     assert run(products["9deg"], "-o", out, "--no-figures").exit_code == 0
     r = run(out / "leakage.h5", "-o", tmp_path / "o2")
-    assert r.exit_code == 2 and "expected ps" in r.stderr
+    assert r.exit_code == 2 and "is a leakage product, not a power-spectrum product" in r.stderr
     r = run(products["9deg"], "-o", tmp_path / "o3", "--expected", products["obs"],
             "--expected", products["obs"], "--correct", products["obs"], "--no-figures")
     assert r.exit_code == 2 and "pairs one to one" in r.stderr

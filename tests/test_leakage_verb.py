@@ -162,10 +162,15 @@ def test_dataset_without_power_refused(inputs):
         leakage(ds)
 
 
-def test_figure_titles_name_field_column_and_field_of_view(inputs):
-    res = leakage([inputs["a"], inputs["b"]], labels=["15deg", "4deg"], n_boot=0)
-    assert input_title(res, 0) == "15deg (MODEL_A, gridded FoV 5.2 deg)"
-    assert input_title(res, 1) == "4deg (MODEL_B, gridded FoV 5.2 deg)"
+def test_figure_titles_name_field_column_and_uv_cell(inputs):
+    """Inputs are named by label, column and uv cell size with the field 1/cell it is the
+    Fourier dual of (degrees(1/16) = 3.58), not by the gridder's half-power width."""
+    cubes = [open_product(inputs[k], "ps").assign_attrs(cell_lambda=16.0) for k in "ab"]
+    res = leakage(cubes, labels=["15deg", "4deg"], n_boot=0)
+    assert input_title(res, 0) == "15deg: MODEL_A, uv cell 16 λ (field 1/cell = 3.58°)"
+    assert input_title(res, 1) == "4deg: MODEL_B, uv cell 16 λ (field 1/cell = 3.58°)"
+    assert input_title(res, 0, sep="\n") == "15deg: MODEL_A\nuv cell 16 λ (field 1/cell = 3.58°)"
+    assert res["cell_lambda"].values.tolist() == [16.0, 16.0]
     assert field_title(res) == "a.ms, b.ms"
     named = leakage(inputs["a"], field_name="NCP", n_boot=0)
     assert field_title(named) == "NCP"
@@ -206,3 +211,36 @@ def test_pdf_beside_png_has_the_png_layout(tmp_path):
     assert len(drawn) >= 2 and drawn[0] != before
     assert all(positions == drawn[0] for positions in drawn[1:])
     assert matplotlib.image.imread(out).shape[:2] == (3 * 130, 4 * 130)
+
+
+def test_histogram_view_to_the_95th_percentile(inputs, monkeypatch):
+    """The figure's x axis ends at the 0.95 quantile of the voxel L_I and says how many
+    voxels lie beyond; the statistics are those of all voxels; the KS p-value is labelled
+    as the one for n_eff voxels."""
+    import msleak.plot.leakage as plot_leakage
+    from msleak.leakage.fraction import leakage_voxels
+
+    rng = np.random.default_rng(7)
+    # independent I and P: W = |I~|^2 / |P~|^2 a ratio of exponentials, a Pareto tail
+    ds = make_ps_dataset(gaussian_voxels(SHAPE, 0.02, rng), gaussian_voxels(SHAPE, 2.0, rng))
+    res = leakage(ds, labels=["a"], n_boot=20)
+    L = leakage_voxels(ds, "voxels", "mask", None, None, "a").L
+    r = res.isel(input=0)
+    edges, beyond = r["hist_view_edges"].values, int(r["n_beyond_hist_view"])
+    assert edges[-1] == pytest.approx(np.quantile(L, 0.95), rel=1e-12)
+    assert beyond == np.count_nonzero(L > edges[-1]) and beyond > 0.04 * L.size
+    assert int(r["hist_view_counts"].sum()) + beyond == L.size == int(r["n_voxels"])
+    assert float(r["median"]) == pytest.approx(np.median(L), rel=1e-12)
+    assert float(r["mean"]) == pytest.approx(L.mean(), rel=1e-12)
+    figures = []
+    monkeypatch.setattr(plot_leakage, "save_figure",
+                        lambda fig, path, pdf=True: figures.append(fig))
+    plot_leakage.plot_leakage_histograms(res, "unused.png")
+    ax = figures[0].axes[0]
+    assert ax.get_xlim() == pytest.approx((0.0, edges[-1]), rel=1e-12)
+    assert ax.get_xlabel().endswith(
+        f"(x axis to the 95th percentile; {beyond} of {L.size} voxels beyond)")
+    box = [t.get_text() for t in ax.texts if "KS D" in t.get_text()]
+    assert len(box) == 1 and box[0].endswith(
+        f"KS D = {float(r['ks_d']):.3f}, p = {float(r['ks_p_eff']):.2g}\n"
+        f"(p for n_eff = {float(r['n_eff']):.0f} effective voxels)")

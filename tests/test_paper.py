@@ -243,3 +243,24 @@ def test_ctrl_c_stops_the_worker_steps_and_a_rerun_finishes(tmp_path):
     assert rerun.returncode == 0, rerun.stderr
     state = json.loads((out / ".msleak-steps.json").read_text())
     assert {"predict-3c196", "grid-3c196", "leakage-3c196"} <= set(state)
+
+
+@pytest.mark.parametrize("rows", [0, 12])
+def test_report_explains_the_1d_floor_from_the_uv_range(tmp_path, rows):
+    """The report's 1D PS caption names the rows that cross the uv-range limits within
+    the band (they set the high-k_par floor, docs/ps.md), and is absent without them."""
+    from msleak.io.products import save_product
+    from msleak.study.report import _ps1d_caption
+
+    cfg = StudyConfig(outdir=tmp_path, quick=True)
+    label = cfg.fields_of_view[0][0]
+    ps = xr.Dataset({"power": ("k", np.ones(2))},
+                    attrs={"n_rows_crossing_uv_range": rows})
+    save_product(ps, tmp_path / "ncp" / f"ps_{label}.h5", "ps", overwrite=False)
+    caption = _ps1d_caption(cfg, "ncp")
+    if rows:
+        assert caption[0].startswith("The MS has 12 rows (baseline x time) whose length "
+                                     "crosses 30 or 180 wavelengths within the band")
+        assert caption[0].endswith("(docs/ps.md, \"A floor from the uv range\").")
+    else:
+        assert caption == []

@@ -322,6 +322,40 @@ def test_fits_cube_sky_one_source_per_pixel(small_lofar_ms, tmp_path):
     np.testing.assert_allclose(model, np.broadcast_to([1, 1, 1, -1], model.shape), atol=1e-5)
 
 
+def _cube_at(path, freq, ra_deg, dec_deg):
+    from msleak.io.fits import write_cube
+    from msleak.sky.cube import SkyCube, make_celestial_wcs
+
+    data = np.ones((2, len(freq), 3, 3), np.float32)
+    write_cube(SkyCube(data=data, freq=np.asarray(freq, float), stokes=("Q", "U"),
+                       wcs=make_celestial_wcs(3, 3, 1.0, ra_deg, dec_deg), units="Jy/pixel"),
+               path)
+    return path
+
+
+@pytest.mark.parametrize("where", ["elsewhere", "on the phase centre"])
+def test_recentred_sky_is_reported(_small_lofar_ms_master, tmp_path, caplog, where):
+    """A pixel sky centred away from the MS's phase centre is re-centred with one warning
+    naming both centres and the MS; a sky on the phase centre (to 1 arcsec) gets none."""
+    import logging
+
+    ms = _small_lofar_ms_master
+    ra, dec = np.degrees(_phase_centre(ms))
+    centre = (10.0, 60.0) if where == "elsewhere" else (ra + 0.5 / 3600, dec - 0.5 / 3600)
+    cube = _cube_at(tmp_path / "sky.fits", _freq(ms), *centre)
+    with caplog.at_level(logging.WARNING, logger="msleak"):
+        run_predict(ms, cube, column=None, beam="none")
+    warned = [r.getMessage() for r in caplog.records
+              if r.name == "msleak.predict.components" and r.levelno == logging.WARNING]
+    if where == "elsewhere":
+        assert warned == [
+            f"sky {cube} is centred at RA 10.0000 deg, Dec 60.0000 deg; re-centred on the "
+            f"phase centre RA {ra % 360:.4f} deg, Dec {dec:.4f} deg of {ms} (every pixel "
+            "keeps its offset from the centre, docs/sky.md)"]
+    else:
+        assert warned == []
+
+
 @pytest.mark.parametrize("case,message", [
     ("missing-sky", "does not exist"),
     ("frequency", "no sky channel"),

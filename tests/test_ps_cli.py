@@ -195,8 +195,8 @@ def test_cli_image_without_freq_axis(tmp_path):
     (["grid", "-o", "x.h5"], "either an MS or --image"),
     (["grid", "some.ms", "--uv-range", "180,30", "-o", "x.h5"], "empty range"),
     (["grid", "missing.ms", "-o", "x.h5"], "no such Measurement Set"),
-    (["transform", "missing.h5", "-o", "x.h5"], "no such file"),
-    (["ps", "missing.h5", "-o", "x.h5", "--cosmology", "Planck18"], "no such file"),
+    (["transform", "missing.h5", "-o", "x.h5"], "missing.h5 does not exist"),
+    (["ps", "missing.h5", "-o", "x.h5", "--cosmology", "Planck18"], "missing.h5 does not exist"),
 ])
 def test_cli_usage_errors(tmp_path, args, pattern):
     r = _run(*args)
@@ -207,6 +207,6 @@ def test_cli_wrong_product_kind(tmp_path):
     path = _write_cube(tmp_path / "i.fits", _sky(), np.degrees(1 / (32 * 16.0)))
     assert _run("grid", "--image", path, "-o", tmp_path / "g.h5").exit_code == 0
     r = _run("ps", tmp_path / "g.h5", "-o", tmp_path / "p.h5")
-    assert r.exit_code == 2 and "expected delay" in r.output
+    assert r.exit_code == 2 and "not a delay cube (transform product)" in r.output
     r = _run("ps", tmp_path / "g.h5", "-o", tmp_path / "p.h5", "--cosmology", "Nope")
     assert r.exit_code == 2

@@ -284,12 +284,13 @@ def _captured(monkeypatch):
 
 def test_ps2d_panels_have_their_own_scale(chain, monkeypatch):
     """Stokes I 1e8 times brighter than Q: each panel's colour limits are those of its own
-    values, and the title names field, field of view and column."""
+    values, and the title names field, uv cell size (with the field it is the Fourier
+    dual of, degrees(1/16) = 3.58) and column."""
     from msleak.plot.ps import colour_limits, plot_ps2d
 
     ds = open_product(chain / "p.h5", "ps")
     ds["power"].loc[{"stokes": "I"}] = ds["power"].sel(stokes="I") * 1e8
-    ds.attrs.update(field_name="NCP", column="MODEL_4DEG", fov_deg=3.58)
+    ds.attrs.update(field_name="NCP", column="MODEL_4DEG", cell_lambda=16.0, fov_deg=5.16)
     figures = _captured(monkeypatch)
     plot_ps2d(ds, "unused.png", stokes=("I", "Q"))
     fig = figures[0]
@@ -300,7 +301,8 @@ def test_ps2d_panels_have_their_own_scale(chain, monkeypatch):
         assert (norm.vmin, norm.vmax) == (pytest.approx(lo, rel=1e-12), pytest.approx(hi))
     assert panels[0].collections[0].norm.vmin > 1e6 * panels[1].collections[0].norm.vmax
     title = fig._suptitle.get_text()
-    assert "NCP" in title and "FoV 3.58 deg" in title and "column MODEL_4DEG" in title
+    assert title.startswith("NCP, uv cell 16 λ (field 1/cell = 3.58°), column MODEL_4DEG;")
+    assert "5.16" not in title
 
 
 def test_ps1d_inputs_differ_by_line_style_and_marker(chain, monkeypatch):
@@ -313,3 +315,20 @@ def test_ps1d_inputs_differ_by_line_style_and_marker(chain, monkeypatch):
     for a, b in ((lines[0], lines[2]), (lines[1], lines[3])):  # same data, other input
         np.testing.assert_array_equal(a.get_ydata(), b.get_ydata())
         assert a.get_linestyle() != b.get_linestyle() and a.get_marker() != b.get_marker()
+
+
+@pytest.mark.parametrize("rows", [0, 12])
+def test_ps1d_names_rows_crossing_the_uv_range(chain, monkeypatch, rows):
+    """Rows whose baseline crosses a uv-range limit within the band (counted by msleak
+    grid) get a note on the 1D PS: they set its floor at high k_par (docs/ps.md)."""
+    from msleak.plot.ps import plot_ps1d
+
+    ds = open_product(chain / "p.h5", "ps")
+    if rows:
+        ds.attrs["n_rows_crossing_uv_range"] = rows
+    figures = _captured(monkeypatch)
+    plot_ps1d([(ds, "a")], "unused.png", stokes=("Q", "U"))
+    notes = [t.get_text() for t in figures[0].axes[0].texts]
+    assert notes == ([f"{rows} rows (baseline x time) cross the\nuv-range limits within the "
+                      "band: in their\ncells a step in frequency sets a floor\nat high "
+                      "$k_\\parallel$ (docs/ps.md)"] if rows else [])

@@ -30,6 +30,7 @@ __all__ = [
     "exact_j2000_to_itrf",
     "sky_basis",
     "enu_basis",
+    "zenith_j2000",
     "transport_angle",
     "basis_rotation",
 ]
@@ -286,6 +287,23 @@ def enu_basis(position_itrf) -> np.ndarray:
     return np.array([[-sl, cl, 0.0],
                      [-sp * cl, -sp * sl, cp],
                      [cp * cl, cp * sl, sp]])
+
+
+def zenith_j2000(time_mjd_s, position_itrf) -> tuple[np.ndarray, np.ndarray]:
+    """J2000 (ra, dec) in rad of the geodetic zenith at ITRF ``position_itrf`` (m) at each
+    UTC ``time_mjd_s`` (MJD s), one exact casacore conversion each (a few ms)."""
+    up = enu_basis(position_itrf)[2]
+    lon, lat = float(np.arctan2(up[1], up[0])), float(np.arcsin(up[2]))
+    times = np.atleast_1d(np.asarray(time_mjd_s, dtype=float))
+    ra, dec = np.empty(times.size), np.empty(times.size)
+    srv = _server(position_itrf)
+    with srv.lock:
+        zenith = srv.dm.direction("ITRF", srv._q(lon, "rad"), srv._q(lat, "rad"))
+        for i, t in enumerate(times):
+            srv.set_time(float(t))
+            m = srv.dm.measure(zenith, "J2000")
+            ra[i], dec[i] = m["m0"]["value"], m["m1"]["value"]
+    return np.mod(ra, 2 * np.pi), dec
 
 
 def transport_angle(ra0: float, dec0: float, ra, dec) -> np.ndarray:

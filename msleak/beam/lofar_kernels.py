@@ -32,7 +32,7 @@ _PIO2_2 = 6.077100506506192e-11
 _PIO2_3 = 2.0222662487959506e-21
 
 
-@njit(inline="always", fastmath={"contract"})
+@njit(inline="always", cache=True, fastmath={"contract"})
 def sincos(x):
     """(sin x, cos x) to ~2e-16 absolute for |x| < 1e4, branch-free so that loops vectorise.
 
@@ -223,7 +223,7 @@ def combine_jones(factors, slot_groups, element_jones, out):
                     out[i, c, k, a, b] = v
 
 
-@njit(inline="always")
+@njit(inline="always", cache=True)
 def _tile_factors(d, k0, nb, s0, t0, need, layout_pos, layout_w, layout_n, freq, uniform, df,
                   at, scratch, ds, zr, zi, sr, si):
     """Tile array factors ``at[layout, c, kl]`` of directions ``d[k0:k0 + nb]`` towards ``t0``,

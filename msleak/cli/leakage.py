@@ -35,7 +35,7 @@ def _ints(ctx, param, value):
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("ps", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("ps", nargs=-1, required=True, type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
               metavar="DIR", help="Output directory: stats.csv, estimates.csv, stats.md, "
               "leakage.h5, figures.")
@@ -66,7 +66,7 @@ def _ints(ctx, param, value):
               help="Statistics only for MIN <= |k_par| <= MAX, in Mpc^-1; maps unchanged.")
 @click.option("--k-perp-range", type=FloatList(2), metavar="MIN,MAX",
               help="Statistics only for MIN <= k_perp <= MAX, in Mpc^-1; maps unchanged.")
-@click.option("--expected", multiple=True, type=click.Path(dir_okay=False),
+@click.option("--expected", multiple=True, type=click.Path(),
               metavar="FILE", help="An observed PS product (repeatable): write the expected "
               "leakage PS (L_I_model/100)^2 x P_P,obs and its spherical average.")
 @click.option("--expected-labels", callback=_labels, metavar="L1,L2,...",
@@ -80,7 +80,7 @@ def _ints(ctx, param, value):
               metavar="FRACTION",
               help="Relative uncertainty of the L_I model [default: fit error, plus the "
                    "spread over inputs for the field estimate].")
-@click.option("--correct", multiple=True, type=click.Path(dir_okay=False), metavar="FILE",
+@click.option("--correct", multiple=True, type=click.Path(), metavar="FILE",
               help="An observed PS product (repeatable) whose Stokes I gets the expected "
                    "leakage subtracted (paired in order with --expected, else its own "
                    "Stokes P is used).")

@@ -22,7 +22,7 @@ def _split(_ctx, _param, value):
 
 
 @click.command("predict")
-@click.argument("ms", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.argument("ms", nargs=-1, required=True, type=click.Path())
 @click.option("--sky", "sky", required=True, multiple=True, type=click.Path(dir_okay=False),
               help="Sky model: a FITS cube (Q/U[/I/V] x frequency, each voxel a point source "
                    "at its channel; Jy/pixel or K) or a makesourcedb text file (Jy). "

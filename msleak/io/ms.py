@@ -80,7 +80,11 @@ def check_ms(path: str | os.PathLike) -> Path:
     if not path.exists():
         raise InputError(f"{path}: no such Measurement Set")
     if not path.is_dir() or not (path / "table.dat").exists():
-        raise InputError(f"{path}: not a Measurement Set (no casacore table there)")
+        from msleak.io.products import describe_path
+
+        what = describe_path(path)[1]
+        raise InputError(f"{path} {what}, not a Measurement Set (no casacore table there); "
+                         "give an MS, e.g. one `msleak simulate OUT.ms` makes")
     for sub in ("ANTENNA", "SPECTRAL_WINDOW", "POLARIZATION", "FIELD", "DATA_DESCRIPTION"):
         if not (path / sub / "table.dat").exists():
             raise InputError(f"{path}: not a complete Measurement Set (no {sub} subtable)")

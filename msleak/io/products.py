@@ -34,7 +34,8 @@ from msleak import __version__
 from msleak.errors import InputError
 
 __all__ = ["FORMAT_VERSION", "CF_CONVENTIONS", "save_product", "open_product", "command_line",
-           "call_record", "refuse_existing", "stamp", "history_lines"]
+           "call_record", "refuse_existing", "stamp", "history_lines", "wrong_input_message",
+           "make_command", "product_name", "describe_path"]
 
 #: Layout version of every product kind written by this msleak.
 FORMAT_VERSION = 2
@@ -170,23 +171,23 @@ def open_product(path: str | os.PathLike, kind: str | Iterable[str] | None = Non
     Raises
     ------
     InputError
-        If the file is missing, not an msleak product, of another kind, written by an
-        incompatible format version, or lacks a required variable.
+        If ``path`` is missing, is not an msleak product (a Measurement Set, a FITS file,
+        another file), is a product of another kind, was written by an incompatible format
+        version, or lacks a required variable: one line saying what ``path`` is and which
+        command makes the product asked for (:func:`wrong_input_message`).
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
+    kinds = {kind} if isinstance(kind, str) else (set(kind) if kind else set())
+    if not path.is_file() or _signature(path) != _HDF5_SIGNATURE:
+        raise InputError(wrong_input_message(path, kinds))
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             ds = ds.load()
     except Exception as err:  # h5py/h5netcdf raise many types for a bad file
-        raise InputError(f"{path}: not a readable msleak product file ({_short(err)})") from err
+        raise InputError(wrong_input_message(path, kinds, reason=_short(err))) from err
     found = ds.attrs.get("msleak_product")
-    if found is None:
-        raise InputError(f"{path}: not an msleak product (no msleak_product attribute)")
-    kinds = {kind} if isinstance(kind, str) else (set(kind) if kind else None)
-    if kinds and found not in kinds:
-        raise InputError(f"{path}: is a {found!r} product, expected {' or '.join(sorted(kinds))}")
+    if found is None or (kinds and found not in kinds):
+        raise InputError(wrong_input_message(path, kinds, found=found or ""))
     fmt = int(ds.attrs.get("msleak_format", 0))
     if fmt != FORMAT_VERSION:
         raise InputError(
@@ -195,9 +196,159 @@ def open_product(path: str | os.PathLike, kind: str | Iterable[str] | None = Non
             f"{FORMAT_VERSION}; regenerate it with this version")
     missing = [name for name in required if name not in ds.variables]
     if missing:
-        raise InputError(f"{path}: {found} product lacks {', '.join(missing)}")
+        raise InputError(f"{path}: {found} product lacks {', '.join(missing)}; "
+                         f"{_remake(found)}")
     return ds
 
 
-def _short(err: BaseException) -> str:
-    return " ".join(str(err).split())[:200] or type(err).__name__
+#: product kind -> (the input it is made from, its name in messages, the command that
+#: makes it from that input, its usual file name); the chain is
+#: MS -> uvcube -> delay -> ps -> leakage, and MS -> beam
+_MAKERS = {
+    "uvcube": ("ms", "uv cube (grid product)", "msleak grid {} -o grid.h5", "grid.h5"),
+    "delay": ("uvcube", "delay cube (transform product)", "msleak transform {} -o delay.h5",
+              "delay.h5"),
+    "ps": ("delay", "power-spectrum product", "msleak ps {} -o ps.h5", "ps.h5"),
+    "leakage": ("ps", "leakage product", "msleak leakage {} -o leakage/",
+                "leakage/leakage.h5"),
+    "beam": ("ms", "beam product", "msleak beam {} -o beam.png", "beam.h5"),
+}
+#: placeholder of an input in the suggested commands
+_INPUT_NAMES = {"ms": "MS", **{kind: spec[3] for kind, spec in _MAKERS.items()}}
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_FITS_SIGNATURE = b"SIMPLE  "
+
+
+def product_name(kind: str) -> str:
+    """How a product kind is named in messages, e.g. ``uv cube (grid product)``."""
+    return _MAKERS[kind][1] if kind in _MAKERS else f"{kind} product"
+
+
+def make_command(kind: str, have: str = "", path: str | os.PathLike | None = None) -> str:
+    """The command(s) that make a ``kind`` product, in backquotes. When ``path`` holds an
+    earlier stage of the chain (``have``: ``ms``, ``fits`` or a product kind), every step
+    from it, e.g. `msleak grid obs.ms -o grid.h5`, then `msleak transform grid.h5 -o
+    delay.h5`; otherwise the last step, from its usual input (`msleak transform grid.h5
+    -o delay.h5`)."""
+    chain = [kind]
+    while _MAKERS[chain[0]][0] in _MAKERS:
+        chain.insert(0, _MAKERS[chain[0]][0])
+    first_input = _MAKERS[chain[0]][0]
+    if path is not None and (have == first_input or (have == "fits" and chain[0] == "uvcube")):
+        steps, src = chain, str(path)
+    elif path is not None and have in chain[:-1]:
+        steps, src = chain[chain.index(have) + 1:], str(path)
+    else:
+        steps, src = chain[-1:], _INPUT_NAMES[_MAKERS[kind][0]]
+    commands = []
+    for k in steps:
+        template = ("msleak grid --image {} -o grid.h5" if have == "fits" and k == "uvcube"
+                    and src == str(path) else _MAKERS[k][2])
+        commands.append(f"`{template.format(src)}`")
+        src = _MAKERS[k][3]
+    return ", then ".join(commands)
+
+
+def wrong_input_message(path: str | os.PathLike, kinds: Iterable[str] = (), *,
+                        found: str = "", reason: str = "") -> str:
+    """One line: what ``path`` is (missing, a Measurement Set, a FITS file, a product of
+    another kind, ...), that it is not a product of ``kinds``, and the command that makes
+    one. ``found``: the kind of the msleak product ``path`` holds (``""``: none);
+    ``reason``: why an HDF5 file could not be read."""
+    path = Path(path)
+    kinds = sorted(kinds)
+    wanted = " or ".join(product_name(k) for k in kinds) or "msleak product"
+    have = ""
+    if not path.exists():
+        line = f"{path} does not exist"
+    else:
+        have, what = describe_path(path, found=found, reason=reason)
+        line = f"{path} {what}, not a {wanted}"
+    if len(kinds) == 1 and kinds[0] in _MAKERS:
+        line += f"; make {'a ' + wanted if line.endswith('exist') else 'one'} with " \
+                f"{make_command(kinds[0], have, path)}"
+    return line
+
+
+def describe_path(path: str | os.PathLike, *, found: str | None = None,
+                  reason: str = "") -> tuple[str, str]:
+    """(what it holds: ``ms``, ``fits``, a product kind or ``""``; words such as "is a FITS
+    file") of an existing ``path``, for messages about wrong inputs. ``found``: the kind of
+    the msleak product ``path`` holds (None: read it from the file); ``reason``: why an
+    HDF5 file could not be read."""
+    path = Path(path)
+    if path.is_dir():
+        return _directory_kind(path)
+    head = _signature(path)
+    if found is None and head == _HDF5_SIGNATURE and not reason:
+        found = _product_kind(path)
+    if found:
+        return found, f"is a {product_name(found)}"
+    if head.startswith(_FITS_SIGNATURE):
+        return "fits", "is a FITS file"
+    if head != _HDF5_SIGNATURE:
+        return "", "is a text file" if _is_text(path) else "is a binary file of an unknown format"
+    if reason:
+        return "", f"is a damaged or truncated HDF5 file ({reason})"
+    return "", "is an HDF5 file without msleak's msleak_product attribute"
+
+
+def _product_kind(path: Path) -> str:
+    """The ``msleak_product`` attribute of an HDF5 file ("" if none or unreadable)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            kind = f.attrs.get("msleak_product", "")
+    except OSError:
+        return ""
+    return kind.decode() if isinstance(kind, bytes) else str(kind)
+
+
+def _directory_kind(path: Path) -> tuple[str, str]:
+    """(``ms`` or ``""``, what the directory ``path`` is) for :func:`wrong_input_message`."""
+    if not (path / "table.dat").exists():
+        return "", "is a directory"
+    try:
+        info = (path / "table.info").read_text(errors="replace")
+    except OSError:
+        info = ""
+    if "Measurement Set" in info or (path / "ANTENNA" / "table.dat").exists():
+        return "ms", "is a Measurement Set"
+    return "", "is a casacore table"
+
+
+def _signature(path: Path) -> bytes:
+    """The first 8 bytes of a file, where HDF5 and FITS files say what they are (b"" if
+    unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(_HDF5_SIGNATURE))
+    except OSError:
+        return b""
+
+
+def _is_text(path: Path) -> bool:
+    """Whether the first kilobyte of ``path`` is UTF-8 text."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(1024)
+        head.decode("utf-8")
+    except (OSError, UnicodeDecodeError):
+        return False
+    return b"\0" not in head
+
+
+def _remake(kind: str) -> str:
+    """``regenerate it with ...``: the command that makes a product of ``kind``."""
+    return f"regenerate it with {make_command(kind)}" if kind in _MAKERS else \
+        "regenerate it with the msleak command that made it"
+
+
+def _short(err: BaseException, limit: int = 120) -> str:
+    """An exception's message on one line, cut at a word boundary to at most ``limit``
+    characters (with "..." when cut)."""
+    text = " ".join(str(err).split()) or type(err).__name__
+    if len(text) <= limit:
+        return text
+    return text[:limit].rsplit(" ", 1)[0].rstrip(",;:(") + " ..."

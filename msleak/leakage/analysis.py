@@ -27,9 +27,11 @@ from msleak.leakage.fraction import (
 )
 from msleak.leakage.observed import ModelMode, bias_correct, expected_leakage
 from msleak.leakage.outputs import default_labels, refuse_existing, write_leakage
-from msleak.leakage.stats import LeakageStatistics, field_estimate, leakage_statistics
+from msleak.leakage.stats import (LeakageStatistics, field_estimate, leakage_statistics,
+                                  view_histogram)
 
-__all__ = ["leakage", "analyse", "realisation_estimates", "voxel_groups", "VOXEL_DEFINITION"]
+__all__ = ["leakage", "analyse", "realisation_estimates", "voxel_groups", "VOXEL_DEFINITION",
+           "HIST_VIEW_QUANTILE"]
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +43,10 @@ VOXEL_DEFINITION = ("full uv plane: each cell (u, tau) of power3d gives two voxe
                     "P_I(u,tau)/|P~(u,tau)|^2 and P_I(u,tau)/|P~(-u,-tau)|^2 "
                     "(power3d_P_mirror); bootstrap groups keep both")
 
+#: the histogram figure shows L_I from 0 to this quantile (the Pareto tail of L_I is long:
+#: its 0.99 quantile is many times the median, docs/leakage.md); the statistics use every voxel
+HIST_VIEW_QUANTILE = 0.95
+
 #: statistics in percent (units attribute)
 _PERCENT = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
             "pareto_median_hist", "peak_bin_width", "median_err", "mean_err",
@@ -49,7 +55,8 @@ _PERCENT = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err
 #: dimensionless statistics (units "1", the CF convention): counts, ratios, KS results
 _DIMENSIONLESS = ("n_voxels", "n_masked", "ks_d", "ks_p", "ks_p_eff", "n_eff", "n_groups",
                   "pareto_loc", "pareto_scale", "wedge_slope_horizon", "wedge_slope_primary",
-                  "hist_counts", "n_masked_by_reason")
+                  "hist_counts", "n_masked_by_reason", "hist_view_counts",
+                  "n_beyond_hist_view")
 
 _MASK_DOC = ", ".join(f"{c}={n}" for n, c in MASK_CODES.items())
 
@@ -285,6 +292,12 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
     out["hist_edges"] = (("input", "hist_edge"), np.array(
         [np.pad(st.hist_edges, (0, nb + 1 - st.hist_edges.size), mode="edge")
          for st in stats]), {"units": "percent"})
+    views = [p[4] for p in per_input]
+    out["hist_view_counts"] = (("input", "hist_view_bin"), np.array([v[0] for v in views]))
+    out["hist_view_edges"] = (("input", "hist_view_edge"), np.array([v[1] for v in views]),
+                              {"units": "percent"})
+    out["n_beyond_hist_view"] = (("input",), np.array([v[2] for v in views], np.int64),
+                                 {"long_name": "voxels above the last hist_view_edges"})
     out["n_masked_by_reason"] = (("input", "mask_reason"),
                                  np.array([p[3] for p in per_input], dtype=np.int64))
     out = out.assign_coords(mask_reason=[n for n in MASK_CODES if n != "valid"])
@@ -298,8 +311,9 @@ def analyse(datasets: Sequence[xr.Dataset], labels: Sequence[str], paths: Sequen
 def _input_statistics(ds: xr.Dataset, label: str, name: str, *, stats_from, negative,
                       bins, upper_quantile, k_par_range, k_perp_range, n_boot,
                       bootstrap_block, seed
-                      ) -> tuple[xr.Dataset, dict, LeakageStatistics, list[int]]:
-    """One input's L_I map, its row of statistics, the statistics, masked counts."""
+                      ) -> tuple[xr.Dataset, dict, LeakageStatistics, list[int], tuple]:
+    """One input's L_I map, its row of statistics, the statistics, masked counts, and the
+    histogram the figure shows (:func:`~msleak.leakage.stats.view_histogram`)."""
     m = leakage_map(ds, negative, name)
     n_bad = int((m["mask"] != 0).sum())
     if n_bad:
@@ -336,13 +350,15 @@ def _input_statistics(ds: xr.Dataset, label: str, name: str, *, stats_from, nega
              "iid %.2g), %d %s worth %.0f independent, KS D %.3g", name, label,
              st.median, st.median_err, st.pareto_median, st.pareto_median_err,
              st.fit.median_err_percent, st.n, vox.source, st.n_eff, st.ks_d)
-    return m, row, st, [vox.masked.get(n, 0) for n in MASK_CODES if n != "valid"]
+    return (m, row, st, [vox.masked.get(n, 0) for n in MASK_CODES if n != "valid"],
+            view_histogram(vox.L, bins, HIST_VIEW_QUANTILE))
 
 
 def _stack(datasets: Sequence[xr.Dataset], maps: list[xr.Dataset], labels, paths,
            realisations) -> xr.Dataset:
     """The inputs' maps on the union k grid, with the coordinates of the ``input`` dim:
-    label, path, realisation, and the product's ``source``, ``column`` and ``fov_deg``."""
+    label, path, realisation, and the product's ``source``, ``column``, ``fov_deg`` and
+    ``cell_lambda``."""
     fill = {"L_I": 0.0, "mask": MASK_CODES["not_in_grid"], "power_I": 0.0, "power_P": 0.0}
     grid = xr.concat(maps, dim="input", join="outer", fill_value=fill)
     grid["mask"] = grid["mask"].astype(np.int8)
@@ -361,7 +377,11 @@ def _stack(datasets: Sequence[xr.Dataset], maps: list[xr.Dataset], labels, paths
         source=("input", [str(ds.attrs.get("source", "")) for ds in datasets]),
         column=("input", [str(ds.attrs.get("column", "")) for ds in datasets]),
         fov_deg=("input", [float(ds.attrs.get("fov_deg", 0.0) or 0.0) for ds in datasets],
-                 {"units": "deg", "long_name": "field of view of the gridding (0: unknown)"}))
+                 {"units": "deg", "long_name": "full width at half power of the gridder's "
+                  "sky response (0: unknown)"}),
+        cell_lambda=("input", [float(ds.attrs.get("cell_lambda", 0.0) or 0.0)
+                               for ds in datasets],
+                     {"units": "wavelengths", "long_name": "uv cell size (0: unknown)"}))
     out["k_par"].attrs["units"] = "Mpc^-1"
     out["k_perp"].attrs["units"] = "Mpc^-1"
     return out
@@ -404,6 +424,7 @@ def _result_attrs(out: xr.Dataset, first: xr.Dataset, field_name: str, o: dict) 
         "hist_bins": int(o["bins"]), "hist_upper_quantile": float(o["upper_quantile"]),
         "hist_binning": f"{o['bins']} uniform bins of L_I from 0 to its "
                         f"{o['upper_quantile']:g} quantile",
+        "hist_view_quantile": HIST_VIEW_QUANTILE,
         "fit": "Pareto b=1 (scipy.stats.pareto) on W=(L_I/100)^2, loc and scale by maximum "
                "likelihood; pareto_median = 100 sqrt(loc + 2 scale)",
         "errors": (f"block bootstrap, {n_boot} resamples of "

@@ -122,7 +122,7 @@ def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
     title = f"L_I statistics{(' of ' + a['field_name']) if a.get('field_name') else ''}"
     lines = [f"# {title}", "",
              "| input | mean (%) | median (%) | std (%) | peak (%) | Pareto median (%) "
-             "| KS D (p) | voxels (independent) | masked |",
+             "| KS D (p for n_eff) | voxels (n_eff) | masked |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for i in range(result.sizes["input"]):
         def g(c, fmt=".4g"):
@@ -146,11 +146,15 @@ def write_stats_md(result: xr.Dataset, path: str | os.PathLike) -> Path:
         "of the maximum-likelihood fit of scipy.stats.pareto (b = 1) to W = (L_I/100)^2. "
         f"Errors (±): {a.get('errors', 'asymptotic')}; voxels are correlated, so these "
         "exceed the independent-voxel error (A/2) sqrt(3/n) (`pareto_median_err_iid` in "
-        "stats.csv); 'independent' = n (iid error / bootstrap error)^2. KS D = largest "
-        "difference between the L_I distribution and the fitted model's CDF, with its "
-        "p-value for that number of independent voxels (approximate: the model was fitted "
-        "to the same voxels); a small p means the single Pareto does not describe the "
-        "voxels (e.g. L_I varies with k): prefer the data median then. The standard "
+        "stats.csv); n_eff = n (iid error / bootstrap error)^2 is the effective number of "
+        "independent voxels. KS D = largest difference between the L_I distribution and "
+        "the fitted model's CDF; its p-value is the one for n_eff voxels, not for all n "
+        "(`ks_p_eff`; `ks_p` in stats.csv is for n, too small for correlated voxels), and "
+        "approximate (the model was fitted to the same voxels); a small p means the single "
+        "Pareto does not describe the voxels (e.g. L_I varies with k): prefer the data "
+        "median then. The histogram figure shows L_I up to its "
+        f"{a.get('hist_view_quantile', 1):g} quantile; every statistic uses all voxels. "
+        "The standard "
         "deviation of L_I does not converge under the model (infinite variance). "
         "Masked: voxels with P_P <= 0, a "
         "non-finite power" + (", or P_I < 0" if a["negative_policy"] == "mask" else "")

@@ -25,6 +25,7 @@ __all__ = [
     "fit_pareto",
     "fit_pareto_histogram",
     "histogram_edges",
+    "view_histogram",
     "leakage_statistics",
     "pareto_density_percent",
     "field_estimate",
@@ -232,6 +233,25 @@ def histogram_edges(L: np.ndarray, bins: int = 100, upper_quantile: float = 0.99
     if not np.isfinite(upper) or upper <= 0:
         upper = float(np.max(L)) if np.size(L) and np.max(L) > 0 else 1.0
     return np.linspace(0.0, upper, bins + 1)
+
+
+def view_histogram(L: np.ndarray, bins: int = 100, quantile: float = 0.95
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The histogram a figure shows of a heavy-tailed sample: ``bins`` uniform bins from
+    0 to the ``quantile`` of ``L``, and how many values lie beyond (the statistics use
+    every value; only the view is cut).
+
+    Returns
+    -------
+    counts : ndarray (bins,)
+    edges : ndarray (bins + 1,)
+    n_beyond : int
+        Values above ``edges[-1]``.
+    """
+    L = np.asarray(L, dtype=np.float64).ravel()
+    edges = histogram_edges(L, bins, quantile)
+    counts, _ = np.histogram(L, edges)
+    return counts, edges, int(np.count_nonzero(L > edges[-1]))
 
 
 @dataclass(frozen=True)

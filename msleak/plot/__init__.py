@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["new_figure", "save_figure", "figure_formats"]
+__all__ = ["new_figure", "save_figure", "figure_formats", "uv_cell_text"]
 
 
 def _pyplot():
@@ -26,6 +26,17 @@ def figure_formats() -> list[str]:
     from matplotlib.backend_bases import FigureCanvasBase
 
     return sorted(FigureCanvasBase.get_supported_filetypes())
+
+
+def uv_cell_text(cell_lambda: float) -> str:
+    """How figures name the uv cell size of a power spectrum, with the field it is the
+    Fourier dual of: ``uv cell 16 λ (field 1/cell = 3.58°)``. That field is set by the
+    gridding, not by the sky: every field of view of a sky gridded on 16-wavelength cells
+    shows the same 3.58° (docs/ps.md, "Figures")."""
+    import math
+
+    return (f"uv cell {cell_lambda:.3g} λ (field 1/cell = "
+            f"{math.degrees(1.0 / cell_lambda):.3g}°)")
 
 
 def new_figure(*args, **kwargs):

@@ -1,6 +1,6 @@
 """Figures of ``msleak leakage``: L_I maps beside P_P and P_I, L_I histograms with the
 Pareto model, and spherical spectra of the expected leakage and of the bias correction.
-Titles name the field, and each input by its label, MS column and gridded field of view."""
+Titles name the field, and each input by its label, MS column and uv cell size."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import xarray as xr
 
 from msleak.leakage.stats import ParetoFit, pareto_density_percent
-from msleak.plot import new_figure, save_figure
+from msleak.plot import new_figure, save_figure, uv_cell_text
 
 __all__ = ["plot_leakage_maps", "plot_leakage_histograms", "plot_expected_spherical",
            "plot_corrected_spherical", "field_title", "input_title"]
@@ -31,17 +31,18 @@ def field_title(result: xr.Dataset) -> str:
     return ", ".join(sources)
 
 
-def input_title(result: xr.Dataset, i: int) -> str:
-    """One input: its label, MS column and gridded field of view, e.g.
-    ``15deg (MODEL_15DEG, gridded FoV 5.2 deg)``."""
+def input_title(result: xr.Dataset, i: int, sep: str = ", ") -> str:
+    """One input: its label, MS column and uv cell size (:func:`~msleak.plot.uv_cell_text`),
+    e.g. ``15deg: MODEL_15DEG, uv cell 16 λ (field 1/cell = 3.58°)`` (``sep`` between
+    column and cell size)."""
     r = result.isel(input=i)
     extra = []
     if "column" in r.coords and str(r["column"].values):
         extra.append(str(r["column"].values))
-    if "fov_deg" in r.coords and float(r["fov_deg"]) > 0:
-        extra.append(f"gridded FoV {float(r['fov_deg']):.2g} deg")
+    if "cell_lambda" in r.coords and float(r["cell_lambda"]) > 0:
+        extra.append(uv_cell_text(float(r["cell_lambda"])))
     label = str(r["label"].values)
-    return f"{label} ({', '.join(extra)})" if extra else label
+    return f"{label}: {sep.join(extra)}" if extra else label
 
 
 def _unit_tex(units: str) -> str:
@@ -153,7 +154,8 @@ def plot_leakage_maps(result: xr.Dataset, path: str | os.PathLike, pdf: bool = T
             _tidy_log_axis(cb.ax.yaxis, norm.vmin, norm.vmax)
             if i == n - 1:
                 ax.set_xlabel(_KPERP)
-            ax.set_ylabel(f"{input_title(result, i)}\n{_KPAR}" if j == 0 else _KPAR)
+            ax.set_ylabel(f"{input_title(result, i, sep=chr(10))}\n{_KPAR}" if j == 0
+                          else _KPAR)
             if i == 0:
                 ax.set_title(("polarized power $P_P$", "Stokes I power $P_I$",
                               r"leakage $L_I = 100\sqrt{P_I/P_P}$")[j])
@@ -165,22 +167,25 @@ def plot_leakage_maps(result: xr.Dataset, path: str | os.PathLike, pdf: bool = T
 
 def plot_leakage_histograms(result: xr.Dataset, path: str | os.PathLike,
                             pdf: bool = True) -> Path:
-    """Histogram (density) of L_I per input with the fitted Pareto model and both medians."""
+    """Histogram (density) of L_I per input with the fitted Pareto model and both medians.
+
+    The x axis ends at the ``hist_view_quantile`` of L_I (``hist_view_counts``,
+    ``hist_view_edges``), and each panel says how many voxels lie beyond; the statistics
+    in the panels are those of every voxel.
+    """
     n = result.sizes["input"]
     ncol = min(n, 3)
     nrow = int(np.ceil(n / ncol))
     fig, axes = new_figure(nrow, ncol, figsize=(4.6 * ncol, 3.6 * nrow), squeeze=False,
                            constrained_layout=True)
     src = "voxels" if result.attrs.get("stats_from") == "voxels" else "bins"
+    view = "hist_view_counts" in result
     for i in range(n):
         ax = axes.flat[i]
         r = result.isel(input=i)
-        nb = int(result.attrs.get("hist_bins", r["hist_counts"].size))
-        edges = r["hist_edges"].values[: nb + 1]
-        counts = r["hist_counts"].values[:nb]
-        width = np.diff(edges)
+        counts, edges, beyond = _view(r, result.attrs, view)
         total = float(r["n_voxels"].values)
-        dens = counts / (total * width)
+        dens = counts / (total * np.diff(edges))
         ax.stairs(dens, edges, fill=True, color="C0", alpha=0.45, label=f"{src} (n={int(total)})")
         fit = ParetoFit(float(r["pareto_loc"]), float(r["pareto_scale"]), 0.0, 0.0, "", 0)
         x = np.linspace(edges[0], edges[-1], 400)
@@ -190,28 +195,51 @@ def plot_leakage_histograms(result: xr.Dataset, path: str | os.PathLike,
         ax.axvline(med, color="k", ls="--", lw=1.2, label="median (data)")
         ax.axvline(pmed, color="C3", ls=":", lw=1.5, label="median (fit)")
         ax.set_xlim(edges[0], edges[-1])
-        ax.set_xlabel(r"$L_I$ [%]")
+        q = 100 * float(result.attrs.get("hist_view_quantile", 1.0))
+        ax.set_xlabel(r"$L_I$ [%]" + (f"\n(x axis to the {q:.0f}th percentile; {beyond} of "
+                                      f"{int(total)} {src} beyond)" if view else ""))
         if i % ncol == 0:
             ax.set_ylabel(r"probability density [%$^{-1}$]")
         ax.set_title(input_title(result, i), fontsize=9)
         ax.legend(loc="upper right", fontsize=8)
-        med_err = f" ± {float(r['median_err']):.1g}" if "median_err" in r else ""
-        ks = (f"\nKS D = {float(r['ks_d']):.3f} (p = {float(r['ks_p_eff']):.2g})"
-              if "ks_d" in r else "")
-        text = (f"median (data) = {med:.3g}{med_err} %\n"
-                f"median (fit)  = {pmed:.3g} ± {float(r['pareto_median_err']):.1g} %\n"
-                f"peak = {float(r['peak']):.3g} %, mean = {float(r['mean']):.3g} %{ks}")
-        ax.text(0.97, 0.5, text, transform=ax.transAxes, ha="right", va="top", fontsize=8,
-                family="monospace",
+        ax.text(0.97, 0.5, _stats_text(r, src), transform=ax.transAxes, ha="right",
+                va="top", fontsize=8, family="monospace",
                 bbox=dict(boxstyle="round", facecolor="white", edgecolor="0.6", alpha=0.9))
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
     name = field_title(result)
+    binning = (f"{result.attrs.get('hist_bins', '')} bins of L_I up to its "
+               f"{100 * float(result.attrs.get('hist_view_quantile', 1)):.0f}th percentile; "
+               f"statistics of all {src}" if view else result.attrs.get("hist_binning", ""))
     fig.suptitle(f"{name + ': ' if name else ''}per-field estimate "
                  f"{result.attrs['field_estimate']:.3g} % (mean of fitted medians); "
-                 f"histogram: {result.attrs.get('hist_binning', '')}".replace("L_I", "$L_I$"),
+                 f"histogram: {binning}".replace("L_I", "$L_I$"),
                  fontsize=9)
     return save_figure(fig, path, pdf=pdf)
+
+
+def _view(r: xr.Dataset, attrs: dict, view: bool) -> tuple[np.ndarray, np.ndarray, int]:
+    """(counts, edges, voxels beyond) of the histogram one panel shows: the view
+    histogram, or (results without one) the statistics' histogram."""
+    if view:
+        return (r["hist_view_counts"].values, r["hist_view_edges"].values,
+                int(r["n_beyond_hist_view"]))
+    nb = int(attrs.get("hist_bins", r["hist_counts"].size))
+    return r["hist_counts"].values[:nb], r["hist_edges"].values[: nb + 1], 0
+
+
+def _stats_text(r: xr.Dataset, src: str) -> str:
+    """The statistics box of one histogram panel; the KS p-value is the one for the
+    effective number of independent voxels ``n_eff`` (docs/leakage.md, "Goodness of fit")."""
+    med, pmed = float(r["median"]), float(r["pareto_median"])
+    med_err = f" ± {float(r['median_err']):.1g}" if "median_err" in r else ""
+    text = (f"median (data) = {med:.3g}{med_err} %\n"
+            f"median (fit)  = {pmed:.3g} ± {float(r['pareto_median_err']):.1g} %\n"
+            f"peak = {float(r['peak']):.3g} %, mean = {float(r['mean']):.3g} %")
+    if "ks_d" in r:
+        text += (f"\nKS D = {float(r['ks_d']):.3f}, p = {float(r['ks_p_eff']):.2g}"
+                 f"\n(p for n_eff = {float(r['n_eff']):.0f} effective {src})")
+    return text
 
 
 def _sph_axes(title: str, units: str):

@@ -10,7 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from msleak.io.products import open_product
-from msleak.plot import new_figure, save_figure
+from msleak.plot import new_figure, save_figure, uv_cell_text
 
 __all__ = ["plot_ps2d", "plot_ps1d"]
 
@@ -56,13 +56,14 @@ def _nice_log_ticks(axis, lo: float, hi: float) -> None:
 
 
 def describe_input(ds) -> str:
-    """Field, field of view and column of a ps product, from its attributes."""
+    """Field, uv cell size (:func:`~msleak.plot.uv_cell_text`) and column of a ps
+    product, from its attributes."""
     attrs = ds.attrs
     name = attrs.get("field_name") or ", ".join(
         Path(part.strip()).name for part in str(attrs.get("source", "") or "?").split(";"))
     parts = [str(name)]
-    if attrs.get("fov_deg"):
-        parts.append(f"FoV {float(attrs['fov_deg']):.3g} deg")
+    if attrs.get("cell_lambda"):
+        parts.append(uv_cell_text(float(attrs["cell_lambda"])))
     if attrs.get("column"):
         parts.append(f"column {attrs['column']}")
     return ", ".join(parts)
@@ -97,7 +98,8 @@ def _wedges(ax, ds, xx: np.ndarray, y_lo: float) -> None:
 def plot_ps2d(ps, path, stokes: Sequence[str] = ("I", "Q", "U", "P"),
               quantity: str = "power", pdf: bool = False, title: str | None = None) -> Path:
     """2D PS (k_par vs k_perp), one panel per Stokes with its own log colour scale
-    (:func:`colour_limits`), both wedge lines; the title names field, FoV and column.
+    (:func:`colour_limits`), both wedge lines; the title names field, uv cell size
+    (:func:`~msleak.plot.uv_cell_text`) and column.
 
     ``quantity`` is ``power`` or ``delta2`` (k_perp^2 k_par P/(2 pi)^2). The k_par = 0 row
     is drawn at half the first non-zero k_par (log axes).
@@ -151,15 +153,18 @@ def plot_ps1d(inputs, path, stokes: Sequence[str] = ("Q", "U"), pdf: bool = Fals
               title: str | None = None) -> Path:
     """1D PS versus k_par of several inputs on one axis: each input its own line style,
     open marker, line width and marker size, each Stokes its own colour, so curves of
-    different inputs stay apart where they overlap.
+    different inputs stay apart where they overlap. When the MS had rows whose baseline
+    crosses the uv-range limits within the band (``n_rows_crossing_uv_range``), a note
+    says that they set a floor at high k_par (docs/ps.md, "A floor from the uv range").
 
     ``inputs``: a sequence of ps products/paths or ``(ps, label)`` pairs.
     """
     fig, ax = new_figure(figsize=(6, 4.2), constrained_layout=True)
-    units, ds = "", None
+    units, ds, crossing = "", None, 0
     for i, item in enumerate(inputs):
         ps, label = item if isinstance(item, tuple) else (item, None)
         ds = _open(ps)
+        crossing = max(crossing, int(ds.attrs.get("n_rows_crossing_uv_range", 0) or 0))
         label = label or describe_input(ds)
         units = ds["power_1d"].attrs.get("units", units)
         k = ds["k_par"].values
@@ -180,4 +185,10 @@ def plot_ps1d(inputs, path, stokes: Sequence[str] = ("Q", "U"), pdf: bool = Fals
     sub = f"{kp[0]:g} < $k_\\perp$ < {kp[1]:g} {k_units}" if kp[0] is not None else ""
     ax.set_title(f"{title}  ({sub})" if title else sub, fontsize=10)
     ax.grid(alpha=0.3, which="both")
+    if crossing:
+        ax.text(0.98, 0.55, f"{crossing} rows (baseline x time) cross the\nuv-range limits "
+                "within the band: in their\ncells a step in frequency sets a floor\nat high "
+                "$k_\\parallel$ (docs/ps.md)", transform=ax.transAxes, fontsize=7,
+                color="0.3", ha="right", va="top",
+                bbox=dict(facecolor="white", edgecolor="none", alpha=0.8))
     return save_figure(fig, path, pdf=pdf)

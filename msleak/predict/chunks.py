@@ -16,7 +16,7 @@ import logging
 import math
 import threading
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -31,9 +31,9 @@ from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
 from msleak.errors import InputError
-from msleak.predict.gridsky import (DEGRID_BATCH, DEGRID_PIXEL_BYTES, FALLBACK_MAX_PIXELS,
+from msleak.predict.gridsky import (DEGRID_BATCH, DEGRID_PIXEL_BYTES,
                                    PIXEL_BEAM_BYTES, PLAN_NSUB, degrid_geometry,
-                                   degrid_visibilities, worth_degridding)
+                                   degrid_visibilities, worth_degridding, zenith_near)
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates, uvw_tolerance
 
 __all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "add_time", "plan_chunks"]
@@ -228,12 +228,12 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
     # a degridded chunk takes complex128 Jones at nsub^2 directions (one copy, built per
     # time), the sky's w-layer grids (DEGRID_PIXEL_BYTES per pixel) and transforms
     # DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's
-    # fallback, below FALLBACK_MAX_PIXELS; rows whose UVW are not antenna-based) takes the
-    # beam at every pixel, a few times at once within PIXEL_BEAM_BYTES
-    # (_pixel_time_blocks), and the direct kernel's scratch
+    # fallback; rows whose UVW are not antenna-based) takes the beam at a block of its
+    # pixels for a few times at once within PIXEL_BEAM_BYTES (_pixel_blocks), and the
+    # direct kernel's scratch for that block
     nsub = max([s.grid.nsub or PLAN_NSUB for s in pixel], default=0)
-    widest = max([s.ndir for s in pixel if s.grid.auto and s.grid.npix ** 2
-                  < FALLBACK_MAX_PIXELS], default=0)
+    widest = max([min(s.ndir, _direct_block(nstation, nchan)) for s in pixel
+                  if s.grid.auto], default=0)
     fixed = (comp.nbytes + nrows * 28 + 128 * DEGRID_BATCH * nsub ** 2
              + DEGRID_PIXEL_BYTES * max([s.ndir for s in pixel], default=0)
              + (PIXEL_BEAM_BYTES if widest else 0)
@@ -281,8 +281,13 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
     fast = np.flatnonzero(~off) if off.any() else slice(None)
     add_time(timings, "uvw", tick)
     rows = (tidx[fast], p[fast], q[fast])
-    geometry = [_geometry(sky.grid, beam_model, times, freq, stations, centre_correction)
-                if sky.grid is not None and not off.all() else None for _, sky in skies]
+    plans = [_geometry(sky.grid, beam_model, times, freq, stations, centre_correction)
+             if sky.grid is not None and not off.all() else (None, None, "")
+             for _, sky in skies]
+    geometry, near = [g for g, _, _ in plans], [n for _, n, _ in plans]
+    notes = [(k, note) for k, (_, _, note) in zip(active, plans) if note]
+    if notes:  # reported once per sky by the process that writes (engine)
+        timings.setdefault("notes", []).extend(notes)
     use_degrid = [g is not None and worth_degridding(sky.grid, g, xyz, *rows, freq)
                   for g, (_, sky) in zip(geometry, skies)]
     direct = [(index, sky) for index, sky in skies if sky.grid is None]
@@ -304,9 +309,9 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                                                            q[fast], jones_left=left)
             del grams
         tick = add_time(timings, "kernel", tick)
-        for out, (_, sky), use, geom in zip(outs, skies, use_degrid, geometry):
+        for out, (_, sky), use, geom, close in zip(outs, skies, use_degrid, geometry, near):
             if sky.grid is not None and not off.all():
-                out[fast, c0:c1] = _pixel_sky(sky, geom if use else None, beam_model,
+                out[fast, c0:c1] = _pixel_sky(sky, geom if use else None, close, beam_model,
                                               fmeta, times, slice(c0, c1), freq, stations,
                                               xyz, rows, centre_correction, dtype)
         tick = add_time(timings, "degrid", tick)
@@ -319,68 +324,124 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                         dtype=dtype)
                     continue
                 rows_off = np.flatnonzero(off)
-                for t0, t1, sky_jones, sky_left in _pixel_time_blocks(
+                out[rows_off, c0:c1] = 0
+                for t0, t1, part, sky_jones, sky_left in _pixel_blocks(
                         sky, beam_model, fmeta, times, freq[c0:c1], stations,
                         centre_correction, dtype):
                     sel = rows_off[(tidx[rows_off] >= t0) & (tidx[rows_off] < t1)]
-                    out[sel, c0:c1] = predict_rows(
-                        _directions_jones(sky_jones, np.arange(sky.ndir)), tidx[sel] - t0,
-                        p[sel], q[sel], uvw[sel], sky.lmn1, freq[c0:c1],
-                        sky.iquv[:, c0:c1], jones_left=sky_left, dtype=dtype)
+                    out[sel, c0:c1] += predict_rows(
+                        _directions_jones(sky_jones, np.arange(part.ndir)), tidx[sel] - t0,
+                        p[sel], q[sel], uvw[sel], part.lmn1, freq[c0:c1],
+                        part.iquv[:, c0:c1], jones_left=sky_left, dtype=dtype)
             add_time(timings, "per_baseline", tick)
         del jones
     return outs, int(off.sum())
 
 
-def _geometry(grid, beam_model, times, freq, stations, centre_correction):
-    """:func:`msleak.predict.gridsky.degrid_geometry`; with ``method="auto"`` a beam that
-    cannot be degridded gives None (the chunk is summed directly, logged) instead of the
-    refusal."""
+def _geometry(grid, beam_model, times, freq, stations, centre_correction) -> tuple:
+    """(:class:`Geometry` or None, ``near`` or None, note) of a degridded sky for one chunk
+    (:func:`msleak.predict.gridsky.degrid_geometry`). With ``method="auto"`` a beam that
+    cannot be degridded does not refuse: the times ``near`` (bool, ntime) at which the
+    zenith is over the padded field are summed directly and the others degridded if the
+    beam allows it there, else (geometry None) the whole chunk is summed directly; the
+    note (one line, else "") says which and why."""
     try:
-        return degrid_geometry(grid, beam_model, times, freq, stations, centre_correction)
+        return degrid_geometry(grid, beam_model, times, freq, stations,
+                               centre_correction), None, ""
     except InputError as err:
         if not grid.auto:
             raise
-        log.warning("%s; --method auto predicts this chunk directly", err)
-        return None
+        reason = getattr(err, "reason", str(err))
+    near = zenith_near(grid, times)
+    result, what = (None, None), "predicted directly"
+    if near is not None and near.any() and not near.all():
+        try:
+            result = (degrid_geometry(grid, beam_model, times[~near], freq, stations,
+                                      centre_correction), near)
+            what = (f"{int(near.sum())} of {near.size} times, those with the zenith over the "
+                    "field, predicted directly")
+        except InputError:
+            pass
+    return (*result, f"degrid {grid.npix} x {grid.npix} pixels: {reason}; {what} "
+                     "(--method auto)")
 
 
-def _pixel_sky(sky, geometry, beam_model, fmeta, times: np.ndarray,
+def _pixel_sky(sky, geometry, near, beam_model, fmeta, times: np.ndarray,
                channels: slice, freq: np.ndarray, stations: np.ndarray, xyz: np.ndarray,
                rows: tuple, centre_correction: bool, dtype) -> np.ndarray:
     """Visibilities (nrow, nchan, 4) of the antenna-based ``rows`` (tidx, p, q) for a sky
-    with a pixel grid, on ``freq[channels]``: degridded with ``geometry``, or (None: a
-    chunk where that costs more, :func:`msleak.predict.gridsky.worth_degridding`) summed
-    directly with its own beam."""
-    if geometry:
+    with a pixel grid, on ``freq[channels]``: degridded with ``geometry``, except the rows
+    of the times ``near`` (bool, ntime, or None: no time), which, like every row when
+    ``geometry`` is None (a chunk where degridding costs more or cannot hold the leakage),
+    are summed directly with their own beam."""
+    tidx, p, q = rows
+    if not geometry:
+        return _pixel_direct(sky, beam_model, fmeta, times, channels, freq, stations, xyz,
+                             rows, centre_correction, dtype)
+    if near is None:
         return degrid_visibilities(sky.grid, geometry, channels, beam_model, times,
                                    freq[channels], stations, xyz, *rows, centre_correction)
-    tidx, p, q = rows
     out = np.empty((tidx.size, freq[channels].size, 4), dtype=dtype)
-    for t0, t1, jones, left in _pixel_time_blocks(sky, beam_model, fmeta, times,
-                                                  freq[channels], stations,
-                                                  centre_correction, dtype):
-        grams = kernels.predict_grams(jones, xyz[t0:t1], sky.lmn1, freq[channels],
-                                      [(np.arange(sky.ndir), sky.w[:, channels],
-                                        sky.sign[:, channels])], dtype=dtype)
-        sel = np.flatnonzero((tidx >= t0) & (tidx < t1))
-        out[sel] = kernels.gather_rows(grams[0], tidx[sel] - t0, p[sel], q[sel],
-                                       jones_left=left)
+    direct = near[tidx]
+    far = np.flatnonzero(~direct)
+    out[far] = degrid_visibilities(sky.grid, geometry, channels, beam_model, times,
+                                   freq[channels], stations, xyz, tidx[far], p[far], q[far],
+                                   centre_correction)
+    close = np.flatnonzero(direct)
+    keep = np.flatnonzero(near)                   # the near times, renumbered 0..
+    renumber = np.cumsum(near) - 1
+    out[close] = _pixel_direct(sky, beam_model, fmeta, times[keep], channels, freq,
+                               stations, xyz[keep], (renumber[tidx[close]], p[close],
+                                                     q[close]), centre_correction, dtype)
     return out
 
 
-def _pixel_time_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
-                       stations: np.ndarray, centre_correction: bool, dtype) -> Iterator:
-    """(t0, t1, Jones, correction) of :func:`_beam` towards every pixel of a pixel sky for
-    blocks of times t0..t1-1, each within :data:`PIXEL_BEAM_BYTES` (three complex128
-    copies), so that a long chunk planned for degridding never holds the beam at every
-    pixel for all its times."""
-    per_time = 3 * 16 * 4 * stations.size * (sky.ndir + 1) * freq.size
-    block = max(1, int(PIXEL_BEAM_BYTES // max(1, per_time)))
-    for t0 in range(0, times.size, block):
-        t1 = min(times.size, t0 + block)
-        yield (t0, t1, *_beam(beam_model, sky, fmeta, times[t0:t1], freq, stations,
-                              centre_correction, dtype))
+def _pixel_direct(sky, beam_model, fmeta, times, channels, freq, stations, xyz, rows,
+                  centre_correction, dtype) -> np.ndarray:
+    """:func:`_pixel_sky`'s direct sum over every pixel of ``rows`` (tidx, p, q)."""
+    tidx, p, q = rows
+    out = np.zeros((tidx.size, freq[channels].size, 4), dtype=dtype)
+    for t0, t1, part, jones, left in _pixel_blocks(sky, beam_model, fmeta, times,
+                                                   freq[channels], stations,
+                                                   centre_correction, dtype):
+        grams = kernels.predict_grams(jones, xyz[t0:t1], part.lmn1, freq[channels],
+                                      [(np.arange(part.ndir), part.w[:, channels],
+                                        part.sign[:, channels])], dtype=dtype)
+        sel = np.flatnonzero((tidx >= t0) & (tidx < t1))
+        out[sel] += kernels.gather_rows(grams[0], tidx[sel] - t0, p[sel], q[sel],
+                                        jones_left=left)
+    return out
+
+
+#: bytes of the beam per direction, station and channel while a pixel sky is summed
+#: directly (three complex128 copies of a 2 x 2 matrix)
+_PIXEL_BEAM_ENTRY = 3 * 16 * 4
+
+
+def _direct_block(nstation: int, nchan: int) -> int:
+    """Pixels whose beam for one time fits :data:`PIXEL_BEAM_BYTES` (at least 1)."""
+    return max(1, int(PIXEL_BEAM_BYTES // (_PIXEL_BEAM_ENTRY * max(1, nstation * nchan))) - 1)
+
+
+def _pixel_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
+                  stations: np.ndarray, centre_correction: bool, dtype) -> Iterator:
+    """(t0, t1, part, Jones, correction): :func:`_beam` towards the pixels ``part`` (a
+    :class:`SkyComponents` of a block of the sky's pixels, or the sky) for times
+    t0..t1-1, each within :data:`PIXEL_BEAM_BYTES`, so that a long chunk planned for
+    degridding never holds the beam at every pixel for all its times; the visibilities of
+    the parts add up to the sky's."""
+    size = _direct_block(stations.size, freq.size)
+    parts = [sky] if size >= sky.ndir else [
+        replace(sky, ra=sky.ra[i:i + size], dec=sky.dec[i:i + size],
+                lmn1=sky.lmn1[i:i + size], iquv=sky.iquv[i:i + size], w=sky.w[i:i + size],
+                sign=sky.sign[i:i + size], grid=None) for i in range(0, sky.ndir, size)]
+    for part in parts:
+        per_time = _PIXEL_BEAM_ENTRY * stations.size * (part.ndir + 1) * freq.size
+        block = max(1, int(PIXEL_BEAM_BYTES // max(1, per_time)))
+        for t0 in range(0, times.size, block):
+            t1 = min(times.size, t0 + block)
+            yield (t0, t1, part, *_beam(beam_model, part, fmeta, times[t0:t1], freq,
+                                        stations, centre_correction, dtype))
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

@@ -163,12 +163,18 @@ def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: floa
 def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
                    fov_deg: float | None = None, interpolate: bool = False,
                    method: str = "auto", epsilon: float = 1e-6,
-                   nsub: int | None = None) -> SkyComponents:
+                   nsub: int | None = None, site=None, site_spread: float = 0.0,
+                   phase_centre_of: str = "") -> SkyComponents:
     """The sources of one sky for one field and spectral window.
 
     ``sky`` as in :func:`sky_sources`; ``freq`` the channels (Hz), ``ra0, dec0`` the phase
     centre (rad), ``fov_deg`` the central field kept (deg); ``method`` ('direct', 'degrid'
-    or 'auto'), ``epsilon`` and ``nsub`` as in :func:`msleak.predict.engine.predict`.
+    or 'auto'), ``epsilon`` and ``nsub`` as in :func:`msleak.predict.engine.predict`;
+    ``site`` the ITRF position (m) of the array's centre and ``site_spread`` the largest
+    angle (rad) from its zenith to a used station's (:class:`PixelGrid`; without a site
+    the degridder's probe does not look for the zenith);
+    ``phase_centre_of`` names where the phase centre comes from (e.g. the MS) in the
+    warning a pixel sky centred elsewhere gets when it is re-centred (:func:`_sky_cube`).
 
     Raises
     ------
@@ -176,14 +182,14 @@ def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
         Missing or unreadable sky, frequency mismatch, FoV larger than the cube, degrid
         asked for a sky that is not a pixel grid, ...
     """
-    cube = _sky_cube(sky, ra0, dec0, fov_deg)
+    cube = _sky_cube(sky, ra0, dec0, fov_deg, phase_centre_of)
     sources = _point_sources(sky, ra0, dec0, fov_deg) if cube is None else \
         sources_from_cube(cube)
     iquv = sources.at_frequencies(np.asarray(freq, dtype=np.float64), interpolate=interpolate)
     grid = None
     if cube is not None and method != "direct":
         grid = pixel_grid(sources.ra, sources.dec, iquv, cube.npix, ra0, dec0,
-                          epsilon=epsilon, nsub=nsub)
+                          epsilon=epsilon, nsub=nsub, site=site, site_spread=site_spread)
     chosen = choose_method(method, grid, len(sources), sky_label(sky), cube is not None)
     comp = prepare_sources(sources.ra, sources.dec, iquv, ra0, dec0)
     if chosen == "degrid":
@@ -194,11 +200,14 @@ def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
     return comp
 
 
-def _sky_cube(sky, ra0: float, dec0: float, fov_deg: float | None) -> SkyCube | None:
+def _sky_cube(sky, ra0: float, dec0: float, fov_deg: float | None,
+              phase_centre_of: str = "") -> SkyCube | None:
     """A pixel sky re-centred on ``ra0, dec0`` (rad) and cropped to ``fov_deg``; None for
-    point sources (a makesourcedb file or :class:`PointSources`)."""
+    point sources (a makesourcedb file or :class:`PointSources`). A cube centred
+    elsewhere is re-centred with a warning (:func:`_warn_recentre`)."""
     import xarray as xr
 
+    label = sky_label(sky)
     if isinstance(sky, (str, os.PathLike)):
         if not os.path.exists(sky):
             raise InputError(f"sky file {sky} does not exist")
@@ -212,8 +221,30 @@ def _sky_cube(sky, ra0: float, dec0: float, fov_deg: float | None) -> SkyCube | 
         sky = cube_from_dataset(sky)
     if not isinstance(sky, SkyCube):
         return None
+    _warn_recentre(sky, ra0, dec0, label, phase_centre_of)
     cube = recentre(sky, ra0, dec0)
     return cube if fov_deg is None else crop(cube, fov_deg=fov_deg)
+
+
+#: a pixel sky whose centre differs from the phase centre by more than this in RA or Dec
+#: (arcsec; at a pole RA sets the orientation) is re-centred with a warning
+RECENTRE_WARN_ARCSEC = 1.0
+
+
+def _warn_recentre(cube: SkyCube, ra0: float, dec0: float, label: str,
+                   phase_centre_of: str) -> None:
+    """Warn, in one line, that ``cube`` (centred at its reference direction CRVAL) is
+    moved onto the phase centre ``ra0, dec0`` (rad) of ``phase_centre_of``
+    (docs/sky.md, "Re-centring")."""
+    ra_c, dec_c = (float(x) for x in cube.wcs.wcs.crval[:2])
+    ra_p, dec_p = np.degrees(ra0) % 360.0, float(np.degrees(dec0))
+    d_ra = (ra_c - ra_p + 180.0) % 360.0 - 180.0
+    if max(abs(d_ra), abs(dec_c - dec_p)) * 3600.0 <= RECENTRE_WARN_ARCSEC:
+        return
+    log.warning("sky %s is centred at RA %.4f deg, Dec %.4f deg; re-centred on the phase "
+                "centre RA %.4f deg, Dec %.4f deg%s (every pixel keeps its offset from the "
+                "centre, docs/sky.md)", label, ra_c % 360.0, dec_c, ra_p, dec_p,
+                f" of {phase_centre_of}" if phase_centre_of else "")
 
 
 def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):

@@ -283,8 +283,13 @@ def _write_chunks(runner, jobs, plans: list, bar, t_start: float) -> None:
 
 
 def _account(plan, job, timings: dict, n_per_baseline: int) -> None:
-    """Add a task's stage timings, time slots and per-baseline rows to its plan."""
+    """Add a task's stage timings, time slots and per-baseline rows to its plan, and log
+    its notes (sky index, line), the first of each sky (``plan.noted``)."""
     plan.rows_per_baseline += n_per_baseline
+    for k, note in timings.pop("notes", []):
+        if k not in plan.noted:
+            plan.noted.add(k)
+            log.warning("%s: %s", plan.targets[k].label, note)
     for key, value in timings.items():
         plan.timings[key] = plan.timings.get(key, 0.0) + value
     plan.n_slots += int(job.times.size)

@@ -22,16 +22,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from msleak.beam.base import centre_inverse
-from msleak.beam.coords import basis_rotation, lm_to_radec, transport_angle
+from msleak.beam.coords import basis_rotation, lm_to_radec, transport_angle, zenith_j2000
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 from msleak.predict import idg
 from msleak.predict.kernels import lmn_minus_one
 
-__all__ = ["PixelGrid", "Geometry", "pixel_grid", "choose_method", "worth_degridding",
-           "beam_support", "subgrid_size", "degrid_geometry", "degrid_visibilities",
+__all__ = ["PixelGrid", "Geometry", "DegridRefused", "pixel_grid", "choose_method",
+           "worth_degridding", "beam_support", "zenith_pass", "zenith_near", "subgrid_size",
+           "degrid_geometry", "degrid_visibilities",
            "AUTO_MIN_PIXELS", "FALLBACK_MAX_PIXELS", "DEFAULT_NSUB", "FREE_CELLS",
-           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "DEGRID_PIXEL_BYTES", "METHODS"]
+           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "DEGRID_PIXEL_BYTES", "METHODS",
+           "CONTRACT_MARGIN"]
 
 METHODS = ("auto", "direct", "degrid")
 #: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
@@ -95,6 +97,14 @@ class PixelGrid:
     auto : bool
         Chosen by ``method="auto"``: a chunk for which the direct sum is cheaper (few
         rows spanning many w-layers) is predicted directly (:func:`worth_degridding`).
+    site : (3,) tuple of float or None
+        ITRF position (m) of the array's centre: the beam is also probed when the zenith
+        is nearest the field (:func:`degrid_geometry`); None: it is not (the zenith is
+        then not looked for).
+    site_spread : float
+        Largest angle (rad) between a used station's zenith and the site's.
+    stokes : tuple of int
+        The Stokes parameters (0..3 for I, Q, U, V) the sky has flux in.
     """
 
     iquv: np.ndarray
@@ -106,6 +116,9 @@ class PixelGrid:
     epsilon: float
     nsub: int | None
     auto: bool = False
+    site: tuple | None = None
+    site_spread: float = 0.0
+    stokes: tuple = (0, 1, 2, 3)
 
     @property
     def npix(self) -> int:
@@ -144,8 +157,8 @@ def _axis_fit(values: np.ndarray, axis: int) -> tuple[float, float] | None:
 
 
 def pixel_grid(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, shape: tuple[int, int],
-               ra0: float, dec0: float, *, epsilon: float, nsub: int | None
-               ) -> PixelGrid | None:
+               ra0: float, dec0: float, *, epsilon: float, nsub: int | None,
+               site=None, site_spread: float = 0.0) -> PixelGrid | None:
     """The pixels of a cube as a :class:`PixelGrid`, or None when they are not a square
     regular (l, m) grid with the same centre index on both axes.
 
@@ -158,6 +171,10 @@ def pixel_grid(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, shape: tuple[i
         basis.
     shape : (ny, nx)
     ra0, dec0 : phase centre, rad
+    site : (3,) array, optional
+        ITRF position (m) of the array's centre (:attr:`PixelGrid.site`).
+    site_spread : float
+        :attr:`PixelGrid.site_spread` (rad).
     """
     ny, nx = shape
     if ny != nx:
@@ -178,9 +195,12 @@ def pixel_grid(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, shape: tuple[i
     psi = transport_angle(ra0, dec0, ra, dec).reshape(ny, nx)[flip]
     cube = np.transpose(np.asarray(iquv, dtype=np.float64).reshape(ny, nx, -1, 4),
                         (2, 0, 1, 3))[(slice(None),) + flip]
+    stokes = tuple(int(k) for k in np.flatnonzero(np.any(cube != 0, axis=(0, 1, 2))))
     return PixelGrid(iquv=np.ascontiguousarray(cube), psi=np.ascontiguousarray(psi),
                      dl=abs(sx), centre=0.5 * (cx + cy),
-                     ra0=float(ra0), dec0=float(dec0), epsilon=float(epsilon), nsub=nsub)
+                     ra0=float(ra0), dec0=float(dec0), epsilon=float(epsilon), nsub=nsub,
+                     site=None if site is None else tuple(float(c) for c in site),
+                     site_spread=float(site_spread), stokes=stokes)
 
 
 def choose_method(method: str, grid: PixelGrid | None, npixels: int, label: str,
@@ -261,42 +281,116 @@ def subgrid_size(grid: PixelGrid, support: float = 0.0) -> int:
     return max(DEFAULT_NSUB, 2 * math.ceil(need))
 
 
+class DegridRefused(InputError):
+    """Degridding cannot meet the accuracy asked of a chunk; ``reason`` says why (one
+    line, no remedy), the message adds the remedy."""
+
+    def __init__(self, reason: str):
+        super().__init__(f"--method degrid: {reason}; use --method direct")
+        self.reason = reason
+
+
 def beam_support(grid: PixelGrid, beam_model, time: float, freq: float,
                  stations: np.ndarray, centre_correction: bool) -> tuple[float, float]:
-    """uv cells per side (of 1 / P, P the padded field) that the spectrum of the beam
-    products J'_p J'_q^H takes, measured at one time and frequency, and the part t(r_p)
-    of the spectrum's norm left beyond it (largest over stations); (0, 0) without a beam.
+    """uv cells per side (of 1 / P, P the padded field) that the beam products take,
+    measured at one time and frequency, and the part of the Jones spectrum's norm left
+    beyond them (largest over stations); (0, 0) without a beam.
 
     Per station, the Jones matrices J' that :func:`degrid_visibilities` uses are taken at
     64 x 64 directions across the padded field, multiplied by the degridder's taper T and
     Fourier transformed. With t(r) the part of the spectrum's norm outside the square of
     half-width r, r_p is the smallest r with t(r) <= epsilon, or where t, below 1e-3,
-    has reached a slowly decaying floor (t(r) <= 10 t(r + 4); EveryBeam's LOFAR element
-    response has one, a kink at the zenith, docs/predict.md). T alone, measured the same
+    has reached a slowly decaying floor (t(r) <= 10 t(r + 4)). T alone, measured the same
     way, takes r_T cells, so J'_p takes r_p - r_T, and a product of two stations twice the
-    largest of those. A beam whose r_p comes within 4
-    cells of the probe's 32 has structure the subgrid cannot hold: refused
-    (InputError)."""
+    largest of those.
+
+    The leakage contract: the Stokes I and V a sky's Stokes parameters
+    (:attr:`PixelGrid.stokes`) give through each station with itself and with the next
+    (:func:`_stokes_response`) must each have t(r) <= epsilon / :data:`CONTRACT_MARGIN`
+    at some r_L, with no floor allowed; their products take r_L - r_T cells, and the support is the larger of the
+    two. A beam whose Jones spectrum comes within 4 cells of the probe's 32, or whose
+    I or V response never reaches epsilon within them (EveryBeam's LOFAR element
+    response and UVBeam's (az, za) grid near the zenith, docs/predict.md), is refused
+    (:class:`DegridRefused`)."""
     if beam_model is None:
         return 0.0, 0.0
     jones, left = _subgrid_jones(grid, beam_model, _PROBE, np.array([time]),
                                  np.array([freq]), stations, centre_correction)
     jones = jones[:, 0, 0] if left is None else left[:, 0, 0, None] @ jones[:, 0, 0]
+    if not np.all(np.isfinite(jones)):
+        raise DegridRefused("the beam is not a finite number at some of the probed directions")
     t1 = idg.taper_1d(_PROBE, idg.taper_beta(grid.epsilon))
-    taper = np.outer(t1, t1)
-    tail = _spectral_tail(jones.reshape(-1, _PROBE, _PROBE, 4) * taper[None, :, :, None])
-    r_taper = int(np.argmax(_spectral_tail(taper[None, :, :, None])[0] <= grid.epsilon))
+    taper = np.outer(t1, t1)[None, :, :, None]
+    r_taper = int(np.argmax(_spectral_tail(taper)[0] <= grid.epsilon))
+    tail = _spectral_tail(jones.reshape(-1, _PROBE, _PROBE, 4) * taper)
     ahead = np.append(tail[:, 4:], np.zeros((len(tail), 4)), axis=1)
     done = (tail <= grid.epsilon) | ((tail <= _FLOOR) & (tail <= 10.0 * ahead))
     r_p = np.argmax(done, axis=1)                # a station with no response: r_p = 0
     worst = float(np.nanmax(tail[np.arange(len(tail)), r_p], initial=0.0))
     r = int(np.max(r_p))
-    if r >= _PROBE // 2 - 4:
-        raise InputError(f"--method degrid: the beam has structure finer than "
-                         f"{_PROBE} directions across the padded "
-                         f"{np.degrees(idg.PAD * grid.npix * grid.dl):.1f} deg field resolve "
-                         f"({worst:.1e} of it left); use --method direct")
-    return 2.0 * max(0, r - r_taper), worst
+    limit = _PROBE // 2 - 4
+    if r >= limit:
+        left_at = float(np.nanmax(tail[:, limit], initial=0.0))
+        raise DegridRefused(f"the beam has structure finer than {_PROBE} directions across "
+                            f"the padded {np.degrees(idg.PAD * grid.npix * grid.dl):.1f} deg "
+                            f"field resolve ({left_at:.1e} of it left)")
+    r_leak, leak_left = _stokes_reach(jones, grid, taper, limit)
+    taper_tail = _spectral_tail(taper)[0]
+    if r_leak is None:
+        raise DegridRefused(f"the beam's Stokes I and V response keeps {leak_left:.1e} of its "
+                            f"spectrum beyond any subgrid, above epsilon {grid.epsilon:g} / "
+                            f"{CONTRACT_MARGIN:g}")
+    r_taper_leak = int(np.argmax(taper_tail <= grid.epsilon / CONTRACT_MARGIN))
+    return max(2.0 * max(0, r - r_taper), float(max(0, r_leak - r_taper_leak))), worst
+
+
+#: a Stokes response whose rms is at most this part of the station's mean Jones power is
+#: rounding (:func:`_stokes_reach`)
+_ROUNDING = 1e-12
+#: the Stokes I and V responses must leave at most epsilon / CONTRACT_MARGIN of their
+#: spectrum beyond the subgrid: degridded Stokes I and V were measured up to 3.4 times
+#: the part left (docs/predict.md, "The leakage contract")
+CONTRACT_MARGIN = 4.0
+#: brightness matrices of unit Stokes I, Q, U, V (linear feeds, docs/conventions.md)
+_STOKES_B = np.array([[[1, 0], [0, 1]], [[1, 0], [0, -1]], [[0, 1], [1, 0]],
+                      [[0, 1j], [-1j, 0]]], dtype=np.complex128)
+
+
+def _stokes_response(jones: np.ndarray, stokes: tuple) -> np.ndarray:
+    """(nst, ndir, 2, len(stokes), 2): the Stokes I (index 0 of axis 2) and V (1) of
+    J_p B_k J_q^H for unit Stokes ``k`` in ``stokes``, with q = p (last axis 0) and q the
+    next station (1), from Jones (nst, ndir, 2, 2)."""
+    other = np.roll(np.arange(len(jones)), -1)
+    out = np.empty((len(jones), jones.shape[1], 2, len(stokes), 2), np.complex128)
+    for i, k in enumerate(stokes):
+        for j, right in enumerate((jones, jones[other])):
+            c = jones @ _STOKES_B[k] @ np.conj(np.swapaxes(right, -1, -2))
+            out[:, :, 0, i, j] = 0.5 * (c[..., 0, 0] + c[..., 1, 1])
+            out[:, :, 1, i, j] = -0.5j * (c[..., 0, 1] - c[..., 1, 0])
+    return out
+
+
+def _stokes_reach(jones: np.ndarray, grid: PixelGrid, taper: np.ndarray, limit: int
+                  ) -> tuple[int | None, float]:
+    """(r_L, 0): the half-width holding all but epsilon / :data:`CONTRACT_MARGIN` of the
+    spectrum of every Stokes I and V response (:func:`_stokes_response`) of ``jones``
+    (nst, probe^2, 2, 2) times ``taper``, per station, output and input Stokes; (None, the
+    largest part left at ``limit``) when one never gets there. A sky with Q or U has both
+    (the transported basis mixes them)."""
+    stokes = sorted(set(grid.stokes) | ({1, 2} if {1, 2} & set(grid.stokes) else set()))
+    resp = _stokes_response(jones, tuple(stokes))
+    nst, nin = len(jones), len(stokes)
+    fields = np.moveaxis(resp.reshape(nst, _PROBE, _PROBE, 2 * nin, 2), 3, 1)
+    tail = _spectral_tail(fields.reshape(-1, _PROBE, _PROBE, 2) * taper)
+    # a response at the rounding level of the station's power (none: V from Q through a
+    # real rotation) has nothing to hold
+    power = np.mean(np.sum(np.abs(jones) ** 2, axis=(2, 3)), axis=1)            # (nst,)
+    rms = np.sqrt(np.mean(np.abs(fields) ** 2, axis=(2, 3, 4))).reshape(-1)    # (nst 2nin,)
+    tail[rms <= _ROUNDING * np.repeat(power, 2 * nin)] = 0.0
+    ok = tail[:, :limit] <= grid.epsilon / CONTRACT_MARGIN
+    if not ok.any(axis=1).all():
+        return None, float(np.max(tail[:, limit - 1]))
+    return int(np.max(np.argmax(ok, axis=1))), 0.0
 
 
 def _spectral_tail(field: np.ndarray) -> np.ndarray:
@@ -320,28 +414,86 @@ _LOGGED: set = set()
 
 def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.ndarray,
                     stations: np.ndarray, centre_correction: bool) -> Geometry:
-    """The :class:`Geometry` of a chunk: the beam's support measured at the chunk's first,
-    middle and last times and highest frequency (the largest), the subgrid size from it
-    (:func:`subgrid_size`); logged once per sky size and result, with the part of the
-    beam's spectrum beyond the support when that is above epsilon (a floor of the beam
-    model, docs/predict.md)."""
-    probes = [beam_support(grid, beam_model, float(t), float(np.max(freq)), stations,
-                           centre_correction)
-              for t in np.unique(times[[0, times.size // 2, -1]])]
-    support, left = max(p[0] for p in probes), max(p[1] for p in probes)
+    """The :class:`Geometry` of a chunk: the beam's support measured (:func:`beam_support`)
+    at the chunk's first, middle and last times and, when the zenith comes within the
+    padded field, at the time it is nearest the phase centre (:func:`zenith_pass`), at
+    the highest frequency (the largest support), and the subgrid size from it
+    (:func:`subgrid_size`); logged once per sky size and result. A probe that refuses
+    (:class:`DegridRefused`) names its time and the zenith's distance."""
+    passing = zenith_pass(grid, times)
+    probe = [] if passing is None else [passing[0]]  # first: the likeliest to refuse
+    probe += [float(t) for t in np.unique(times[[0, times.size // 2, -1]]) if t not in probe]
+    results = []
+    for t in probe:
+        try:
+            results.append(beam_support(grid, beam_model, t, float(np.max(freq)), stations,
+                                        centre_correction))
+        except DegridRefused as err:
+            raise DegridRefused(f"{err.reason} at {_iso(t)}, the zenith "
+                                f"{np.degrees(_zenith_distance(grid, t)[0]):.1f} deg from the "
+                                "phase centre" if grid.site is not None else err.reason
+                                ) from None
+    support, left = max(p[0] for p in results), max(p[1] for p in results)
     geometry = Geometry(nsub=subgrid_size(grid, support), support=support)
     key = (grid.npix, grid.dl, grid.epsilon, geometry)
     if key not in _LOGGED:
         _LOGGED.add(key)
         log.info("degrid %d x %d pixels: the beam takes %.1f uv cells per side at %.3f MHz, "
-                 "subgrids of %d x %d", grid.npix, grid.npix, support, np.max(freq) / 1e6,
-                 geometry.nsub, geometry.nsub)
+                 "subgrids of %d x %d (beam probed at %d times)", grid.npix, grid.npix,
+                 support, np.max(freq) / 1e6, geometry.nsub, geometry.nsub, len(probe))
         if left > grid.epsilon:
-            log.info("degrid %d x %d pixels: the beam's spectrum keeps %.1e of its norm "
-                        "beyond the subgrid's reach (a floor of the beam model, above "
-                        "epsilon %g; docs/predict.md)", grid.npix, grid.npix, left,
-                        grid.epsilon)
+            log.info("degrid %d x %d pixels: the beam's Jones spectrum keeps %.1e of its norm "
+                     "beyond the subgrid's reach (a floor of the beam model, above epsilon "
+                     "%g; its Stokes I and V response is held to epsilon; docs/predict.md)",
+                     grid.npix, grid.npix, left, grid.epsilon)
     return geometry
+
+
+#: zenith positions computed per chunk at most (evenly spaced times)
+_ZENITH_SAMPLES = 64
+
+
+def zenith_pass(grid: PixelGrid, times: np.ndarray) -> tuple[float, float] | None:
+    """(time, distance in rad) of the chunk time, among at most 64 evenly spaced, when the
+    zenith of :attr:`PixelGrid.site` is nearest the phase centre, if it is then within
+    the padded field's half-diagonal; else (or without a site) None."""
+    if grid.site is None or times.size == 0:
+        return None
+    pick = np.unique(np.rint(np.linspace(0, times.size - 1,
+                                         min(times.size, _ZENITH_SAMPLES))).astype(int))
+    dist = _zenith_distance(grid, times[pick])
+    i = int(np.argmin(dist))
+    return (float(times[pick[i]]), float(dist[i])) if dist[i] <= _zenith_reach(grid) else None
+
+
+def zenith_near(grid: PixelGrid, times: np.ndarray) -> np.ndarray | None:
+    """(ntime,) bool: the times at which the zenith of :attr:`PixelGrid.site` is within the
+    padded field's half-diagonal of the phase centre (None without a site)."""
+    if grid.site is None:
+        return None
+    return _zenith_distance(grid, times) <= _zenith_reach(grid)
+
+
+def _zenith_reach(grid: PixelGrid) -> float:
+    """Half-diagonal (rad) of the padded field the beam is probed over, plus the largest
+    angle between the zenith of a used station and that of :attr:`PixelGrid.site`."""
+    half = math.sqrt(2.0) * idg.PAD * grid.npix * grid.dl / 2
+    return math.asin(min(1.0, half)) + grid.site_spread
+
+
+def _zenith_distance(grid: PixelGrid, times) -> np.ndarray:
+    """Angle (rad) between the zenith of :attr:`PixelGrid.site` and the phase centre."""
+    ra, dec = zenith_j2000(times, np.asarray(grid.site))
+    cos = (np.sin(dec) * math.sin(grid.dec0)
+           + np.cos(dec) * math.cos(grid.dec0) * np.cos(ra - grid.ra0))
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def _iso(time_mjd_s: float) -> str:
+    """UTC of an MS time (MJD s), to the second."""
+    from astropy.time import Time
+
+    return Time(time_mjd_s / 86400.0, format="mjd", scale="utc").isot[:19]
 
 
 def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations,
@@ -385,6 +537,8 @@ def degrid_visibilities(grid: PixelGrid, geometry: Geometry, channels: slice, be
     for t0 in range(0, times.size, block):
         t1 = min(times.size, t0 + block)
         rows = np.flatnonzero((tidx >= t0) & (tidx < t1))
+        if rows.size == 0:
+            continue
         jones, left = _subgrid_jones(grid, beam_model, nsub, times[t0:t1], freq, stations,
                                      centre_correction)
         for c in range(freq.size):  # one channel at a time: one transported copy

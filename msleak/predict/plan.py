@@ -26,10 +26,12 @@ from msleak.io import columns as colio
 from msleak.io.ms import (
     iter_rows,
     open_table,
+    read_antennas,
     read_corr_types,
     read_data_descriptions,
     read_fields,
     read_spectral_windows,
+    read_used_antennas,
 )
 from msleak.predict.chunks import register_beam
 from msleak.predict.components import SkySet, sky_components, sky_label, sky_set
@@ -107,6 +109,9 @@ class Plan:
     table: object = None
     n_slots: int = 0
     rows_per_baseline: int = 0
+    #: skies (target indices) whose chunk note (:func:`msleak.predict.chunks._geometry`)
+    #: has been logged
+    noted: set = field(default_factory=set)
     #: new columns are created complex128 (casacore DComplex)
     double_column: bool = False
 
@@ -241,8 +246,11 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                     "the full coherency and writes those two (the cross hands are not "
                     "stored)", ms, d, ",".join(feeds[d].names))
     _check_rows(ms, groups)
+    site = (_array_site(ms, groups) if beam != "none" and method.get("method") != "direct"
+            else (None, 0.0))
     skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
-                                  interpolate_frequency, method) for f, d in groups}
+                                  interpolate_frequency, method, site,
+                                  _field_text(ms, fields_meta, f)) for f, d in groups}
     token = uuid.uuid4().hex
     options = register_beam(token, beam, ms, groups, beam_options)
     common = {"beam": beam, "centre_correction": bool(centre_correction and beam != "none"),
@@ -266,15 +274,40 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                 double_column=double_column)
 
 
-def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool, method: dict
-                 ) -> SkySet:
-    """The skies of one field and spectral window (each (sky, fov) read once)."""
+def _field_text(ms: Path, fields_meta: list, f: int) -> str:
+    """``ms``, or ``ms field F (NAME)`` when it has several fields: where a phase centre
+    comes from, in the re-centring warning."""
+    if len(fields_meta) < 2:
+        return str(ms)
+    name = getattr(fields_meta[f], "name", "")
+    return f"{ms} field {f}" + (f" ({name})" if name else "")
+
+
+def _array_site(ms: Path, groups: list) -> tuple[np.ndarray, float]:
+    """Mean ITRF position (m) of the antennas in the selected rows, and the largest angle
+    (rad) between one's geodetic zenith and the mean position's."""
+    from msleak.beam.coords import enu_basis
+
+    used = np.unique(np.concatenate([read_used_antennas(ms, f, d) for f, d in groups]))
+    positions = read_antennas(ms).positions[used]
+    site = positions.mean(axis=0)
+    up = enu_basis(site)[2]
+    cos = [float(np.dot(enu_basis(x)[2], up)) for x in positions]
+    return site, float(np.arccos(np.clip(min(cos), -1.0, 1.0)))
+
+
+def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool, method: dict,
+                 site: tuple, phase_centre_of: str = "") -> SkySet:
+    """The skies of one field and spectral window (each (sky, fov) read once);
+    ``phase_centre_of`` names the field in the re-centring warning."""
     comps: dict = {}
     for t in targets:
         key = _sky_key(t)
         if key not in comps:
             comps[key] = sky_components(t.sky, freq, fmeta.ra, fmeta.dec, fov_deg=t.fov_deg,
-                                        interpolate=interpolate, **method)
+                                        interpolate=interpolate, site=site[0],
+                                        site_spread=site[1],
+                                        phase_centre_of=phase_centre_of, **method)
     return sky_set([comps[_sky_key(t)] for t in targets])
 
 

@@ -273,6 +273,10 @@ def _run(plan: _Plan, chunk_rows, scheduler, workers, memory_limit, progress) ->
     log.info("gridded %d of %d unflagged samples of %s (uv range %g..%g wavelengths; %s)",
              stats["in_range"], stats["unflagged"], ", ".join(spec.columns), spec.uv_min,
              spec.uv_max, scheduler_text)
+    if stats["rows_crossing"]:
+        log.info("%d rows (baseline x time) enter or leave the uv range within the band: "
+                 "their cells change abruptly in frequency there, a floor at high k_par "
+                 "(docs/ps.md, 'A floor from the uv range')", stats["rows_crossing"])
     return totals, stats
 
 
@@ -286,6 +290,7 @@ def _describe(plan: _Plan, totals: list, stats: dict, beam_area, beam_area_model
                     "NaN in the cube", plan.label, "; ".join(sorted(
                         {",".join(i.layout.names) for i in inputs})), ", ".join(missing))
     attrs = _cube_attrs(plan, missing, stats["in_range"], beam_area, beam_area_model)
+    attrs["n_rows_crossing_uv_range"] = int(stats["rows_crossing"])
     ms_history = _ms_history(inputs)
     size = spec.grid.size
     nhalves = 2 if spec.split else 0

@@ -247,9 +247,12 @@ def _weighted_rows(inp: Input, spec: Spec, c: dict, stats: dict) -> tuple:
     stats["unflagged"] += int(np.count_nonzero((wgt != 0) & cross[:, None]))
     wgt = wgt[keep]
     b_l = b_m[keep, None] * scale[None, :]
-    wgt[(b_l < uv_min) | (b_l > uv_max)] = 0.0
+    outside = (b_l < uv_min) | (b_l > uv_max)
+    wgt[outside] = 0.0
     stats["in_range"] += int(np.count_nonzero(wgt))
     used = (wgt > 0).any(axis=1)
+    # rows whose baseline enters or leaves the uv range within the band (docs/ps.md)
+    stats["rows_crossing"] += int(np.count_nonzero(outside[used].any(axis=1)))
     rows = np.flatnonzero(keep)[used]
     # The MS's UVW column holds uvw_ANTENNA2 - uvw_ANTENNA1, and visibilities follow
     # V = sum B exp(+2 pi i UVW . (l, m, n - 1)) (DP3's convention, which msleak predict
@@ -274,7 +277,7 @@ def _grid_task(job: Job, spec: Spec) -> tuple[list, dict]:
                              buffer_samples=spec.chunk_rows * nchan // halves,
                              to_stokes=correlations_to_stokes_matrix(inp.layout.feed))
             for _ in range(halves)]
-    stats = dict(rows=0, samples=0, unflagged=0, in_range=0)
+    stats = dict(rows=0, samples=0, unflagged=0, in_range=0, rows_crossing=0)
     c = _read_chunk(inp, job.rows, inp.cols)
     rows, uvw, wgt = _weighted_rows(inp, spec, c, stats)
     parts: list = [slice(None)]  # the rows of each accumulator
@@ -385,7 +388,7 @@ def run_tasks(inputs: list, spec: Spec, chunk_rows: int | None, scheduler, worke
     """Grid every input's row chunks: per input its summed accumulators (None: no rows),
     the counts, and the scheduler used."""
     totals: list = [None] * len(inputs)
-    stats = dict(rows=0, samples=0, unflagged=0, in_range=0)
+    stats = dict(rows=0, samples=0, unflagged=0, in_range=0, rows_crossing=0)
     with open_runner(scheduler, workers, memory_limit or 2 * 1024**3) as runner:
         nchan_max = max(i.freq.size for i in inputs)
         spec = replace(spec, corr_bytes=max(i.vis_dtype.itemsize for i in inputs))

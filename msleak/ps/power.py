@@ -52,7 +52,7 @@ KEEP_ATTRS = ("cell_lambda", "uv_min_lambda", "uv_max_lambda", "source", "source
               "primary_fwhm_deg", "beam_area_model", "window", "window_norm", "freq_centre_hz",
               "bandwidth_hz", "nchan", "channel_width_hz", "fft_convention",
               "stokes_convention", "split", "empty_cell_policy", "correlations",
-              "stokes_missing", "history")
+              "stokes_missing", "n_rows_crossing_uv_range", "history")
 
 #: unit -> (unit with little h, power of h the values are multiplied by)
 _LITTLE_H = {"Mpc^-1": ("h Mpc^-1", -1), "mK^2 Mpc^3": ("mK^2 h^-3 Mpc^3", 3),

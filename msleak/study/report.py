@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from msleak import __version__
+from msleak.io.products import open_product
 from msleak.plot.ps import plot_ps1d
 from msleak.study.config import StudyConfig
 
@@ -73,6 +74,25 @@ def _extra_figures(cfg: StudyConfig, out: Path) -> dict:
         except Exception as err:  # a figure must not lose the report
             log.warning("1D PS figure for %s failed: %s", fld, err)
     return made
+
+
+def _ps1d_caption(cfg: StudyConfig, fld: str) -> list[str]:
+    """What sets the high-k_par floor of the 1D PS figure, when baselines cross the uv-range
+    limits within the band (the grid records how many rows do)."""
+    paths = [out for label, _ in cfg.fields_of_view
+             if (out := Path(cfg.outdir) / fld / f"ps_{label}.h5").exists()]
+    rows = max((int(open_product(p, "ps").attrs.get("n_rows_crossing_uv_range", 0) or 0)
+                for p in paths), default=0)
+    if not rows:
+        return []
+    lo, hi = cfg.uv_range
+    return [f"The MS has {rows} rows (baseline x time) whose length crosses {lo:g} or "
+            f"{hi:g} wavelengths within the band: each enters or leaves the uv range "
+            "mid-band, a step in frequency in the cells it feeds, which puts a flat floor at "
+            "high k_par there. Where such cells lie in the figure's k_perp range the curves "
+            "flatten onto that floor; its height depends on the sky in those cells, so the Q "
+            "and U floors can differ by orders of magnitude (docs/ps.md, \"A floor from the "
+            "uv range\").", ""]
 
 
 def _stats_table(rows: list[dict], with_seed: bool) -> list[str]:
@@ -175,7 +195,7 @@ def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
         if beam_png.exists():
             lines += [f"![beam {fld}]({_rel(beam_png, out)})", ""]
         if fld in ps1d:
-            lines += [f"![1D PS {fld}]({_rel(ps1d[fld], out)})", ""]
+            lines += [f"![1D PS {fld}]({_rel(ps1d[fld], out)})", "", *_ps1d_caption(cfg, fld)]
         for label, _ in cfg.fields_of_view:
             png = out / "figures" / f"ps_{fld}_{label}.png"
             if png.exists():
