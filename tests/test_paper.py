@@ -226,8 +226,11 @@ def test_ctrl_c_stops_the_worker_steps_and_a_rerun_finishes(tmp_path):
     cmd = [sys.executable, "-m", "msleak", "paper", str(out), *TINY, "--interval", "60",
            "--workers", "2"]
     env = {**os.environ, "MPLBACKEND": "Agg"}
+    # a shell starts background jobs with SIGINT ignored, and Python then installs no
+    # KeyboardInterrupt handler: give the study the default disposition
     proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                            text=True)
+                            text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     seen = []
     for line in proc.stderr:
         seen.append(line)

@@ -212,10 +212,16 @@ def test_a_ctrl_c_handed_to_a_step_thread_stops_the_running_steps_at_once(tmp_pa
 
     invoke = Invoke()
     out = tmp_path / "a"
-    t0 = time.monotonic()
-    with pytest.raises(KeyboardInterrupt):
-        StepRunner(tmp_path).run_all([Step("a", ["a", out], outputs=[out])], invoke,
-                                     workers=2)
+    # a shell starts background jobs with SIGINT ignored: Python's handler, as in a
+    # terminal, for the length of the test
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            StepRunner(tmp_path).run_all([Step("a", ["a", out], outputs=[out])], invoke,
+                                         workers=2)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert invoke.stopped_after is not None and invoke.stopped_after < 5
 
 
