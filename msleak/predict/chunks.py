@@ -246,8 +246,9 @@ def _chunk_size(plan, comp: SkySet, ntime: int, nchan: int, nstation: int,
 
 def chunk_task(job: Chunk, _shared=None) -> tuple[list, dict, int]:
     """Visibilities (nrow, nchan, ncorr) of one chunk for each sky of ``job.active``, the
-    task's stage timings, and the number of rows predicted per baseline (pure computation
-    on the job's arrays; the beam model is loaded once per process)."""
+    task's stage timings (with, under ``"notes"``, the (sky, line) pairs the writing
+    process logs: :func:`_geometry`), and the number of rows predicted per baseline (pure
+    computation on the job's arrays; the beam model is loaded once per process)."""
     beam_model = _cached_beam(job.beam, job.ms, job.beam_token, job.beam_options)
     timings: dict = {}
     vis, n_per_baseline = predict_chunk(job.comp, beam_model, job.times, job.freq,

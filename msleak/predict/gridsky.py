@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from msleak.beam.base import centre_inverse
-from msleak.beam.coords import basis_rotation, lm_to_radec, transport_angle, zenith_j2000
+from msleak.beam.coords import (basis_rotation, lm_to_radec, radec_to_unit, transport_angle,
+                                 zenith_j2000)
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 from msleak.predict import idg
@@ -307,9 +308,10 @@ def beam_support(grid: PixelGrid, beam_model, time: float, freq: float,
     The leakage contract: the Stokes I and V a sky's Stokes parameters
     (:attr:`PixelGrid.stokes`) give through each station with itself and with the next
     (:func:`_stokes_response`) must each have t(r) <= epsilon / :data:`CONTRACT_MARGIN`
-    at some r_L, with no floor allowed; their products take r_L - r_T cells, and the support is the larger of the
-    two. A beam whose Jones spectrum comes within 4 cells of the probe's 32, or whose
-    I or V response never reaches epsilon within them (EveryBeam's LOFAR element
+    at some r_L, with no floor allowed; their products take r_L - r_T cells (r_T at the
+    same threshold), and the support is the larger of the two. A beam that is not finite,
+    whose Jones spectrum comes within 4 cells of the probe's 32, or whose I or V
+    response never reaches that threshold within them (EveryBeam's LOFAR element
     response and UVBeam's (az, za) grid near the zenith, docs/predict.md), is refused
     (:class:`DegridRefused`)."""
     if beam_model is None:
@@ -321,7 +323,8 @@ def beam_support(grid: PixelGrid, beam_model, time: float, freq: float,
         raise DegridRefused("the beam is not a finite number at some of the probed directions")
     t1 = idg.taper_1d(_PROBE, idg.taper_beta(grid.epsilon))
     taper = np.outer(t1, t1)[None, :, :, None]
-    r_taper = int(np.argmax(_spectral_tail(taper)[0] <= grid.epsilon))
+    taper_tail = _spectral_tail(taper)[0]
+    r_taper = int(np.argmax(taper_tail <= grid.epsilon))
     tail = _spectral_tail(jones.reshape(-1, _PROBE, _PROBE, 4) * taper)
     ahead = np.append(tail[:, 4:], np.zeros((len(tail), 4)), axis=1)
     done = (tail <= grid.epsilon) | ((tail <= _FLOOR) & (tail <= 10.0 * ahead))
@@ -335,7 +338,6 @@ def beam_support(grid: PixelGrid, beam_model, time: float, freq: float,
                             f"the padded {np.degrees(idg.PAD * grid.npix * grid.dl):.1f} deg "
                             f"field resolve ({left_at:.1e} of it left)")
     r_leak, leak_left = _stokes_reach(jones, grid, taper, limit)
-    taper_tail = _spectral_tail(taper)[0]
     if r_leak is None:
         raise DegridRefused(f"the beam's Stokes I and V response keeps {leak_left:.1e} of its "
                             f"spectrum beyond any subgrid, above epsilon {grid.epsilon:g} / "
@@ -421,7 +423,7 @@ def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.nda
     (:func:`subgrid_size`); logged once per sky size and result. A probe that refuses
     (:class:`DegridRefused`) names its time and the zenith's distance."""
     passing = zenith_pass(grid, times)
-    probe = [] if passing is None else [passing[0]]  # first: the likeliest to refuse
+    probe = [] if passing is None else [passing]  # first: the likeliest to refuse
     probe += [float(t) for t in np.unique(times[[0, times.size // 2, -1]]) if t not in probe]
     results = []
     for t in probe:
@@ -429,10 +431,11 @@ def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.nda
             results.append(beam_support(grid, beam_model, t, float(np.max(freq)), stations,
                                         centre_correction))
         except DegridRefused as err:
-            raise DegridRefused(f"{err.reason} at {_iso(t)}, the zenith "
-                                f"{np.degrees(_zenith_distance(grid, t)[0]):.1f} deg from the "
-                                "phase centre" if grid.site is not None else err.reason
-                                ) from None
+            if grid.site is None:
+                raise
+            distance = np.degrees(_zenith_distance(grid, t)[0])
+            raise DegridRefused(f"{err.reason} at {_iso(t)}, the zenith {distance:.1f} deg "
+                                "from the phase centre") from None
     support, left = max(p[0] for p in results), max(p[1] for p in results)
     geometry = Geometry(nsub=subgrid_size(grid, support), support=support)
     key = (grid.npix, grid.dl, grid.epsilon, geometry)
@@ -453,17 +456,17 @@ def degrid_geometry(grid: PixelGrid, beam_model, times: np.ndarray, freq: np.nda
 _ZENITH_SAMPLES = 64
 
 
-def zenith_pass(grid: PixelGrid, times: np.ndarray) -> tuple[float, float] | None:
-    """(time, distance in rad) of the chunk time, among at most 64 evenly spaced, when the
-    zenith of :attr:`PixelGrid.site` is nearest the phase centre, if it is then within
-    the padded field's half-diagonal; else (or without a site) None."""
+def zenith_pass(grid: PixelGrid, times: np.ndarray) -> float | None:
+    """The chunk time, among at most 64 evenly spaced, when the zenith of
+    :attr:`PixelGrid.site` is nearest the phase centre, if it is then within the padded
+    field's half-diagonal; else (or without a site) None."""
     if grid.site is None or times.size == 0:
         return None
     pick = np.unique(np.rint(np.linspace(0, times.size - 1,
                                          min(times.size, _ZENITH_SAMPLES))).astype(int))
     dist = _zenith_distance(grid, times[pick])
     i = int(np.argmin(dist))
-    return (float(times[pick[i]]), float(dist[i])) if dist[i] <= _zenith_reach(grid) else None
+    return float(times[pick[i]]) if dist[i] <= _zenith_reach(grid) else None
 
 
 def zenith_near(grid: PixelGrid, times: np.ndarray) -> np.ndarray | None:
@@ -483,10 +486,8 @@ def _zenith_reach(grid: PixelGrid) -> float:
 
 def _zenith_distance(grid: PixelGrid, times) -> np.ndarray:
     """Angle (rad) between the zenith of :attr:`PixelGrid.site` and the phase centre."""
-    ra, dec = zenith_j2000(times, np.asarray(grid.site))
-    cos = (np.sin(dec) * math.sin(grid.dec0)
-           + np.cos(dec) * math.cos(grid.dec0) * np.cos(ra - grid.ra0))
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+    zenith = radec_to_unit(*zenith_j2000(times, np.asarray(grid.site)))
+    return np.arccos(np.clip(zenith @ radec_to_unit(grid.ra0, grid.dec0), -1.0, 1.0))
 
 
 def _iso(time_mjd_s: float) -> str:
