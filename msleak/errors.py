@@ -1,14 +1,31 @@
 """Exceptions msleak raises for problems a user can fix.
 
 Every :class:`MsleakError` becomes a one-line message and exit status 2 on the command
-line; anything else is an unexpected failure (exit status 1).
+line; anything else is an unexpected failure (exit status 1). A message names the Python
+parameters it is about (``epsilon must be in (0, 0.1)``) and lists them in ``param``; the
+command line shows each as the flag that sets it (``--epsilon``), so the library never
+spells a flag.
 """
+
+from __future__ import annotations
 
 __all__ = ["MsleakError", "InputError", "ConfigurationError"]
 
 
 class MsleakError(Exception):
-    """A problem with the user's input or environment, stated in one actionable line."""
+    """A problem with the user's input or environment, stated in one actionable line.
+
+    Parameters
+    ----------
+    message : str
+        The line, naming parameters by their Python names.
+    param : str or sequence of str, optional
+        The parameters the message names (as whole words); the CLI writes each as its flag.
+    """
+
+    def __init__(self, message: str = "", *, param: str | tuple[str, ...] | list[str] = ()):
+        super().__init__(message)
+        self.params: tuple[str, ...] = (param,) if isinstance(param, str) else tuple(param)
 
 
 class InputError(MsleakError, ValueError):

@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 
 from msleak import __version__
+from msleak.cli._flags import as_flags
 from msleak.errors import MsleakError
 
 __all__ = ["main", "cli"]
@@ -63,7 +64,8 @@ class LazyGroup(click.Group):
         try:
             return super().invoke(ctx)
         except MsleakError as err:
-            click.echo(f"msleak: error: {_one_line(err)}", err=True)
+            click.echo(f"msleak: error: {_one_line(as_flags(err, self._invoked(ctx)))}",
+                       err=True)
             ctx.exit(2)
         except KeyboardInterrupt:
             click.echo("msleak: interrupted: rerun the same command (predict and paper "
@@ -81,6 +83,11 @@ class LazyGroup(click.Group):
             click.echo(f"msleak: unexpected failure: {type(err).__name__}: {_one_line(err)} "
                        "(rerun with `msleak --debug ...` for the traceback)", err=True)
             ctx.exit(1)
+
+
+    def _invoked(self, ctx: click.Context) -> click.Command | None:
+        name = ctx.invoked_subcommand
+        return self.get_command(ctx, name) if name else None
 
 
 def _one_line(err: BaseException) -> str:

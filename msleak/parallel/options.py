@@ -20,7 +20,7 @@ def _scheduler(_ctx, _param, value):
     try:
         return check_scheduler(value)
     except InputError as err:
-        raise click.BadParameter(str(err).replace("--scheduler ", "")) from None
+        raise click.BadParameter(str(err)) from None
 
 
 def parallel_options(func):

@@ -67,7 +67,7 @@ def check_scheduler(text: str) -> str:
         return value.lower()
     if _ADDRESS.match(value):
         return value
-    raise InputError(f"--scheduler {text!r}: use threads, processes, sync or a dask "
+    raise InputError(f"{text!r} is not a scheduler: use threads, processes, sync or a dask "
                      "scheduler address such as tcp://host:8786")
 
 
@@ -83,7 +83,7 @@ def parse_memory(value: str | float) -> int:
             raise InputError(f"{value!r} is not a memory size (e.g. 2GB, 512MB, 4e9)")
         number, unit = float(match.group(1)), match.group(2).upper()
     if not number > 0:
-        raise InputError("--memory-limit must be positive")
+        raise InputError("memory_limit must be positive", param="memory_limit")
     return int(number * _MEMORY_UNITS[unit])
 
 
@@ -254,7 +254,7 @@ def _connect(address: Any):
     try:
         import distributed
     except ImportError as err:
-        raise ConfigurationError("--scheduler ADDRESS needs dask.distributed "
+        raise ConfigurationError("a scheduler address needs dask.distributed "
                                  "(pip install distributed)") from err
     if isinstance(address, distributed.Client):
         return address, False
@@ -264,7 +264,7 @@ def _connect(address: Any):
         raise ConfigurationError(f"cannot reach the dask scheduler at {address} "
                                  f"({' '.join(str(err).split())[:120]}); start it with "
                                  "`dask scheduler` and `dask worker ADDRESS`, or use "
-                                 "--scheduler threads") from None
+                                 "scheduler threads", param="scheduler") from None
     return client, True
 
 
@@ -286,9 +286,9 @@ def open_runner(scheduler: Any = "threads", workers: int | None = None,
         memory limit), shared among its threads.
     """
     if memory_limit is None or not memory_limit > 0:
-        raise InputError("--memory-limit must be positive")
+        raise InputError("memory_limit must be positive", param="memory_limit")
     if workers is not None and int(workers) < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
+        raise InputError(f"workers must be >= 1, got {workers}", param="workers")
     kind = scheduler if not isinstance(scheduler, str) else check_scheduler(scheduler or "threads")
     if scheduler is None:
         kind = "threads"

@@ -1,0 +1,42 @@
+"""Library parameter names to command-line flags: the one place the CLI translates them.
+
+The library's errors name Python parameters (``epsilon must be in (0, 0.1)``) and list them
+in :attr:`msleak.errors.MsleakError.params`; the command line shows each as the flag of the
+running command that sets it (``--epsilon``), read from the command's own click options, or
+from :data:`ALIASES` where the flag's name differs from the parameter's.
+"""
+
+from __future__ import annotations
+
+import re
+
+import click
+
+from msleak.errors import MsleakError
+
+__all__ = ["ALIASES", "flag_for", "as_flags"]
+
+#: parameter name -> flag, where the flag is not the parameter's name with dashes
+ALIASES: dict[str, str] = {}
+
+
+def flag_for(param: str, command: click.Command | None = None) -> str:
+    """The flag (or argument name) of ``command`` that sets the library parameter ``param``."""
+    if param in ALIASES:
+        return ALIASES[param]
+    for option in getattr(command, "params", ()):
+        if option.name == param:
+            if isinstance(option, click.Argument):
+                return option.human_readable_name
+            longs = [o for o in option.opts if o.startswith("--")]
+            return (longs or option.opts)[0]
+    return "--" + param.replace("_", "-")
+
+
+def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
+    """``err``'s message with each parameter it names written as its flag."""
+    text = str(err)
+    for param in getattr(err, "params", ()):
+        text = re.sub(rf"(?<![\w\-`']){re.escape(param)}(?![\w\-])", flag_for(param, command),
+                      text)
+    return text
