@@ -4,7 +4,8 @@ Every :class:`MsleakError` becomes a one-line message and exit status 2 on the c
 line; anything else is an unexpected failure (exit status 1). A message names the Python
 parameters it is about (``epsilon must be in (0, 0.1)``) and lists them in ``param``; the
 command line shows each as the flag that sets it (``--epsilon``), so the library never
-spells a flag.
+spells a flag. Where a name is also an ordinary word of the message, the message quotes the
+parameter in backticks (`` `sky` ``) and only those occurrences become flags.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ class MsleakError(Exception):
     message : str
         The line, naming parameters by their Python names.
     param : str or sequence of str, optional
-        The parameters the message names (as whole words); the CLI writes each as its flag.
+        The parameters the message names (as whole words, or in backticks where the name is
+        also an ordinary word of the message); the CLI writes each as its flag.
     """
 
     def __init__(self, message: str = "", *, param: str | tuple[str, ...] | list[str] = ()):

@@ -40,7 +40,7 @@ import numpy as np
 CHILD = r"""
 import json, resource, sys, time
 t0 = time.perf_counter()
-from msleak.predict import predict
+from msleak.verbs.predict import predict
 r = predict(sys.argv[1], sys.argv[2], column=sys.argv[3], beam=sys.argv[4],
             double=sys.argv[5] == "1", progress=False, scheduler="sync")
 print(json.dumps({"wall": time.perf_counter() - t0, "seconds": r.seconds,

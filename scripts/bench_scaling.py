@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", default="sync", help="predict/grid scheduler (sync)")
     args = ap.parse_args(argv)
     os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(sys.prefix) / "numba-cache"))
-    from msleak.predict import predict
+    from msleak.verbs.predict import predict
     from msleak import grid
 
     outdir = Path(args.outdir or "bench-output")

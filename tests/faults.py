@@ -6,8 +6,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from msleak.predict import chunks, runstate
-from msleak.predict.chunks import chunk_task
+from msleak.verbs import predict_run as runstate
+from msleak.verbs.predict_chunks import chunk_task
 
 __all__ = ["fail_after_chunks", "kill_worker_at"]
 

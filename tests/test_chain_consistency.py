@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from msleak.io.skymodel import write_skymodel
-from msleak.predict import predict
+from msleak.verbs.predict import predict
 import msleak
 from msleak.sky import PointSources
 

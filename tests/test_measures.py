@@ -106,7 +106,7 @@ def test_predict_twice_in_one_process_is_bit_identical(tmp_path):
     converted in between: the visibilities are identical."""
     from ms_helpers import phase_centre, write_sky
     from msleak.io.ms import read_times
-    from msleak.predict.engine import predict
+    from msleak.verbs.predict import predict
     from msleak.telescope.simulate import simulate
 
     ms = simulate(tmp_path / "a.ms", field="3c196", stations="CS00[1-4]HBA*", duration=2.0,

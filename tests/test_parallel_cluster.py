@@ -37,7 +37,7 @@ def sky(tmp_path):
 @pytest.fixture
 def reference(small_lofar_ms, sky, tmp_path):
     """(fresh MS copy, serial MODEL_DATA of the same MS and sky)."""
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     ref_ms = tmp_path / "ref.ms"
     shutil.copytree(small_lofar_ms, ref_ms)
@@ -46,7 +46,7 @@ def reference(small_lofar_ms, sky, tmp_path):
 
 
 def test_cluster_predict_same_model_data(cluster, reference, sky):
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     ms, ref = reference
     res = engine.predict(ms, sky, scheduler=cluster.scheduler_address, memory_limit=40_000,
@@ -70,7 +70,7 @@ def test_cluster_grid_same_ps(cluster, small_lofar_ms):
 
 def test_worker_killed_once_recovers(cluster, reference, sky, tmp_path, monkeypatch):
     from faults import kill_worker_at
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     ms, ref = reference
     marker = tmp_path / "killed-once"
@@ -89,8 +89,8 @@ def test_worker_killed_every_time_fails_cleanly(cluster, reference, sky, monkeyp
     from faults import kill_worker_at
 
     from msleak.errors import MsleakError
-    from msleak.predict import engine
-    from msleak.predict.engine import predict
+    from msleak.verbs import predict as engine
+    from msleak.verbs.predict import predict
 
     ms, ref = reference
     with pt.table(str(ms), readonly=False, ack=False) as t:  # recognisable DATA

@@ -63,7 +63,7 @@ def _column(ms, name="MODEL_DATA"):
 
 @pytest.mark.parametrize("scheduler", ["threads", "processes"])
 def test_predict_local_schedulers_match_serial(small_lofar_ms, sky, tmp_path, scheduler):
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     other = tmp_path / "other.ms"
     shutil.copytree(small_lofar_ms, other)
@@ -81,7 +81,7 @@ def test_predict_local_schedulers_match_serial(small_lofar_ms, sky, tmp_path, sc
 
 
 def test_predict_several_ms_matches_one_by_one(make_ms, sky):
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     lo = make_ms("lo.ms", nchan=3)
     hi = make_ms("hi.ms", nchan=3, freq_min=150e6 + 3 * WIDTH)
@@ -102,7 +102,7 @@ def test_predict_several_ms_interrupted_resumes(make_ms, sky, monkeypatch):
     """A failure in the second MS leaves the first complete, the second incomplete;
     rerunning finishes the second without touching the first."""
     from faults import fail_after_chunks
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     a = make_ms("a.ms")
     b = make_ms("b.ms", freq_min=150e6 + 4 * WIDTH)
@@ -250,7 +250,7 @@ def test_cli_parallel_option_errors(small_lofar_ms, sky, args, message):
 
 
 def test_predict_twice_same_ms_is_an_error(small_lofar_ms, sky):
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     with pytest.raises(InputError, match="given twice"):
         engine.predict([small_lofar_ms, small_lofar_ms], sky, beam="none")

@@ -24,7 +24,7 @@ require("mwa_hyperbeam", "the MWA tile beam (msleak[mwa])")
 
 import peer_sim as ps  # noqa: E402
 from ms_helpers import C  # noqa: E402
-from msleak.predict.engine import predict  # noqa: E402
+from msleak.verbs.predict import predict  # noqa: E402
 from msleak.sky.sources import PointSources  # noqa: E402
 from msleak.telescope.simulate import simulate  # noqa: E402
 

@@ -17,7 +17,7 @@ from casa_ms import build_ms
 from ms_helpers import channel_freqs, phase_centre, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
-from msleak.predict.engine import predict
+from msleak.verbs.predict import predict
 from msleak.sky.make import make_sky
 
 NTIME = 3
@@ -145,7 +145,7 @@ def test_history_row_per_run_and_none_when_refused(ms, sky):
     (dict(column=None, two_ms=True), "column=None returns the visibilities of one Measurement"),
     (dict(column=["M", None], two_skies=True), "give every sky a column, or none"),
     (dict(memory_limit="lots"), "'lots' is not a memory size"),
-    (dict(memory_limit=0), "--memory-limit must be positive"),
+    (dict(memory_limit=0), "memory_limit must be positive"),
     (dict(not_a_sky=True), "sky must be a path, a sky Dataset"),
     (dict(diameter=4.0), "--diameter applies to --beam dipole only, not --beam none"),
 ])

@@ -27,7 +27,7 @@ from ms_helpers import one_error_line, phase_centre
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.predict import chunks, gridsky
-from msleak.predict.engine import predict
+from msleak.verbs.predict import predict
 from msleak.sky.cube import SkyCube, pixel_directions, recentre
 from msleak.sky.sources import PointSources
 
@@ -171,7 +171,7 @@ def test_auto_falls_back_to_direct_where_degrid_costs_more():
     assert gridsky.subgrid_size(grid(80)) == gridsky.DEFAULT_NSUB
     # a beam taking 8 cells: taper 6.08 + 1.5 + FREE_CELLS 4 + 8 = 19.6 -> 40
     assert gridsky.subgrid_size(grid(80), 8.0) == 40
-    with pytest.raises(InputError, match="--nsub 24: epsilon 1e-06 and the beam's 8.0 cells"
+    with pytest.raises(InputError, match="nsub 24: epsilon 1e-06 and the beam's 8.0 cells"
                        " need nsub >= 34"):
         gridsky.subgrid_size(replace(grid(80), nsub=24), 8.0)
     many = (np.zeros(1000, int), np.arange(1000) % 2, 1 - np.arange(1000) % 2)

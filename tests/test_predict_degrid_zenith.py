@@ -26,7 +26,7 @@ from click.testing import CliRunner
 from ms_helpers import one_error_line, phase_centre
 from msleak.beam.coords import zenith_j2000
 from msleak.cli import cli
-from msleak.predict.engine import predict
+from msleak.verbs.predict import predict
 from msleak.predict.gridsky import DegridRefused
 
 EPS = 1e-6

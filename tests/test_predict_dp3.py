@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from dp3run import dp3_available, run_dp3_predict
-from msleak.predict import predict as run_predict
+from msleak.verbs.predict import predict as run_predict
 from peers import missing
 
 # dp3 is a test dependency (pyproject [test]); CI sets MSLEAK_REQUIRE_PEERS, so only a

@@ -14,8 +14,8 @@ from click.testing import CliRunner
 from msleak.beam.lofar_fast import LofarFastBeam
 from msleak.cli import cli
 from msleak.errors import InputError
-from msleak.predict import chunks
-from msleak.predict import predict as run_predict
+from msleak.verbs import predict_chunks as chunks
+from msleak.verbs.predict import predict as run_predict
 from faults import fail_after_chunks
 from ms_helpers import C, copy_spectral_window
 from ms_helpers import channel_freqs as _freq

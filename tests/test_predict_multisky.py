@@ -25,7 +25,8 @@ from ms_helpers import direct_dft, lm_to_radec, phase_centre, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
-from msleak.predict import chunks, engine
+from msleak.verbs import predict_chunks as chunks
+from msleak.verbs import predict as engine
 from msleak.predict import kernels as K
 from msleak.predict.chunks import plan_chunks
 from test_predict_kernels import _direct

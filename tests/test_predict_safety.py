@@ -25,7 +25,8 @@ from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
 from faults import fail_after_chunks
-from msleak.predict import chunks, engine
+from msleak.verbs import predict_chunks as chunks
+from msleak.verbs import predict as engine
 
 NTIME = 5
 #: 4 KB: one time slot per chunk, so NTIME chunks

@@ -19,7 +19,7 @@ import pytest
 
 from casa_ms import build_ms
 from ms_helpers import C, channel_freqs, direct_dft, phase_centre, table, write_sky
-from msleak.predict import engine
+from msleak.verbs import predict as engine
 from msleak.predict.baselines import predict_rows
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, station_coordinates
 

@@ -124,7 +124,7 @@ def test_refused_and_failed_predicts_leave_ms_unchanged(small_lofar_ms, tmp_path
 
     # an unexpected failure after some chunks: DATA intact, column marked incomplete
     from faults import fail_after_chunks
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated failure"):
         fail_after_chunks(m, 1)
@@ -141,7 +141,7 @@ def test_predict_over_existing_model_replaces_whole_chunks(small_lofar_ms, tmp_p
     either its old or its new values (never a mix within a row), and the rows the run
     state reports as done hold the new values."""
     from faults import fail_after_chunks
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     ms = small_lofar_ms
     ra0, dec0 = _phase_centre(ms)

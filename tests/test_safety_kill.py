@@ -64,7 +64,7 @@ def _write_sky(path, ra0, dec0, shift=0.0):
 
 @pytest.fixture(scope="module")
 def kill_env(tmp_path_factory):
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
     from msleak.telescope.simulate import simulate
 
     root = tmp_path_factory.mktemp("kill")
@@ -212,7 +212,7 @@ def test_truncated_header_is_repaired_by_rerun(small_lofar_ms, tmp_path, monkeyp
 
     from msleak.cli import cli
     from msleak.io import columns as colio
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     ms = small_lofar_ms
     with _table(f"{ms}/FIELD") as t:
@@ -269,7 +269,7 @@ def test_two_writers_wait_for_each_other(kill_env, tmp_path):
     assert second.returncode == 0, second.stderr
     # the first one finished before the second wrote anything: the final column is the
     # second's sky, complete, and equal to an uninterrupted prediction of that sky
-    from msleak.predict import engine
+    from msleak.verbs import predict as engine
 
     ref = tmp_path / "ref_old.ms"
     shutil.copytree(env["master"], ref)

@@ -34,9 +34,15 @@ def flag_for(param: str, command: click.Command | None = None) -> str:
 
 
 def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
-    """``err``'s message with each parameter it names written as its flag."""
+    """``err``'s message with each parameter it names written as its flag: where the
+    message quotes the name in backticks (`` `sky` ``), those occurrences only, else every
+    occurrence as a whole word."""
     text = str(err)
     for param in getattr(err, "params", ()):
-        text = re.sub(rf"(?<![\w\-`']){re.escape(param)}(?![\w\-])", flag_for(param, command),
-                      text)
+        flag = flag_for(param, command)
+        quoted = f"`{param}`"
+        if quoted in text:
+            text = text.replace(quoted, flag)
+        else:
+            text = re.sub(rf"(?<![\w\-`']){re.escape(param)}(?![\w\-])", flag, text)
     return text

@@ -9,8 +9,9 @@ import click
 from msleak.beam.base import BEAM_NAMES
 from msleak.cli._common import MemorySize, beam_model_options
 from msleak.parallel.options import parallel_options
-from msleak.predict.engine import predict as run
-from msleak.predict.gridsky import AUTO_MIN_PIXELS, METHODS
+from msleak.predict.gridsky import AUTO_MIN_PIXELS
+from msleak.predict.options import METHODS, DegridOptions
+from msleak.verbs.predict import predict as run
 
 __all__ = ["predict"]
 
@@ -56,15 +57,16 @@ def _split(_ctx, _param, value):
               help="Create the columns as complex128 (casacore DComplex) to keep --double's "
                    "values (implies --double). For columns msleak grid reads: DP3 and "
                    "WSClean cannot open a complex128 column.")
-@click.option("--method", type=click.Choice(METHODS), default="auto",
+@click.option("--method", type=click.Choice(METHODS), default=DegridOptions.method,
               show_default=True,
               help="direct: every pixel summed as a point source; degrid: image-domain "
                    "gridding, at a cost independent of the pixel count (pixel skies only); "
                    f"auto: degrid for pixel skies of at least {AUTO_MIN_PIXELS} pixels "
                    "where cheaper, direct otherwise (logged with -v).")
-@click.option("--epsilon", type=float, default=1e-6, show_default=True, metavar="FRACTION",
+@click.option("--epsilon", type=float, default=DegridOptions.epsilon, show_default=True,
+              metavar="FRACTION",
               help="Requested relative accuracy of --method degrid.")
-@click.option("--nsub", type=int, default=None, metavar="N",
+@click.option("--nsub", type=int, default=DegridOptions.nsub, metavar="N",
               help="Subgrid size of --method degrid (even, >= 8) [default: from the beam's "
                    "measured spectrum, at least 32; w-layers serve any |w|].")
 @click.option("--memory-limit", type=MemorySize(), default="2GB", show_default=True,

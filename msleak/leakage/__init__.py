@@ -35,4 +35,4 @@ __all__ = [
 ]
 
 
-make_callable(__name__, leakage)
+make_callable(__name__, "msleak.leakage.analysis:leakage")

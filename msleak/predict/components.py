@@ -16,23 +16,19 @@ which the beam is evaluated once, and each sky's rows in it.
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
 from msleak.errors import InputError
-from msleak.io.fits import cube_from_dataset
-from msleak.io.fits import is_fits, read_cube
-from msleak.io.skymodel import read_skymodel
 from msleak.predict.gridsky import PixelGrid, choose_method, pixel_grid
 from msleak.predict.kernels import brightness_factors, lmn_minus_one
+from msleak.predict.options import DegridOptions
 from msleak.sky.cube import SkyCube, crop, recentre
 from msleak.sky.sources import PointSources, sources_from_cube
 
-__all__ = ["SkyComponents", "SkySet", "sky_components", "sky_sources", "sky_label", "sky_set",
-           "prepare_sources"]
+__all__ = ["SkyComponents", "SkySet", "sky_components", "sky_set", "prepare_sources"]
 
 log = logging.getLogger(__name__)
 
@@ -160,70 +156,55 @@ def prepare_sources(ra: np.ndarray, dec: np.ndarray, iquv: np.ndarray, ra0: floa
     return SkyComponents(ra=ra, dec=dec, lmn1=lmn1, iquv=iquv, w=w, sign=sign)
 
 
-def sky_components(sky, freq: np.ndarray, ra0: float, dec0: float, *,
-                   fov_deg: float | None = None, interpolate: bool = False,
-                   method: str = "auto", epsilon: float = 1e-6,
-                   nsub: int | None = None, site=None, site_spread: float = 0.0,
+def sky_components(sky: SkyCube | PointSources, freq: np.ndarray, ra0: float, dec0: float,
+                   *, label: str = "", fov_deg: float | None = None,
+                   interpolate: bool = False, degrid: DegridOptions = DegridOptions(),
+                   site=None, site_spread: float = 0.0,
                    phase_centre_of: str = "") -> SkyComponents:
     """The sources of one sky for one field and spectral window.
 
-    ``sky`` as in :func:`sky_sources`; ``freq`` the channels (Hz), ``ra0, dec0`` the phase
-    centre (rad), ``fov_deg`` the central field kept (deg); ``method`` ('direct', 'degrid'
-    or 'auto'), ``epsilon`` and ``nsub`` as in :func:`msleak.predict.engine.predict`;
-    ``site`` the ITRF position (m) of the array's centre and ``site_spread`` the largest
-    angle (rad) from its zenith to a used station's (:class:`PixelGrid`; without a site
-    the degridder's probe does not look for the zenith);
-    ``phase_centre_of`` names where the phase centre comes from (e.g. the MS) in the
-    warning a pixel sky centred elsewhere gets when it is re-centred (:func:`_sky_cube`).
+    ``sky`` a pixel sky (:class:`~msleak.sky.cube.SkyCube`, re-centred on the phase centre
+    and cropped to the central ``fov_deg`` degrees) or
+    :class:`~msleak.sky.sources.PointSources` (those within ``fov_deg`` kept), named
+    ``label`` in messages; ``freq`` the channels (Hz), ``ra0, dec0`` the phase centre
+    (rad); ``degrid`` how pixel skies are predicted; ``site`` the ITRF position (m) of
+    the array's centre and ``site_spread`` the largest angle (rad) from its zenith to a
+    used station's (:class:`PixelGrid`; without a site the degridder's probe does not look
+    for the zenith); ``phase_centre_of`` names where the phase centre comes from (e.g. the
+    MS) in the warning a pixel sky centred elsewhere gets when it is re-centred.
 
     Raises
     ------
     InputError
-        Missing or unreadable sky, frequency mismatch, FoV larger than the cube, degrid
-        asked for a sky that is not a pixel grid, ...
+        Frequency mismatch, FoV larger than the cube, degrid asked for a sky that is not a
+        pixel grid, ...
     """
-    cube = _sky_cube(sky, ra0, dec0, fov_deg, phase_centre_of)
-    sources = _point_sources(sky, ra0, dec0, fov_deg) if cube is None else \
-        sources_from_cube(cube)
+    label = label or f"<in-memory {type(sky).__name__}>"
+    if isinstance(sky, SkyCube):
+        _warn_recentre(sky, ra0, dec0, label, phase_centre_of)
+        cube = recentre(sky, ra0, dec0)
+        cube = cube if fov_deg is None else crop(cube, fov_deg=fov_deg)
+        sources = sources_from_cube(cube)
+    elif isinstance(sky, PointSources):
+        cube, sources = None, _within(sky, ra0, dec0, fov_deg)
+    else:
+        raise InputError(f"sky must be a SkyCube or PointSources, not {type(sky).__name__}",
+                         param="sky")
     iquv = sources.at_frequencies(np.asarray(freq, dtype=np.float64), interpolate=interpolate)
     grid = None
-    if cube is not None and method != "direct":
+    if cube is not None and degrid.method != "direct":
         grid = pixel_grid(sources.ra, sources.dec, iquv, cube.npix, ra0, dec0,
-                          epsilon=epsilon, nsub=nsub, site=site, site_spread=site_spread)
-    chosen = choose_method(method, grid, len(sources), sky_label(sky), cube is not None)
+                          epsilon=degrid.epsilon, nsub=degrid.nsub, site=site,
+                          site_spread=site_spread)
+    chosen = choose_method(degrid.method, grid, len(sources), label, cube is not None)
     comp = prepare_sources(sources.ra, sources.dec, iquv, ra0, dec0)
     if chosen == "degrid":
-        comp = replace(comp, grid=replace(grid, auto=method == "auto"))
-    log.info("sky %s: %d sources, %d directions with flux, predicted by %s%s", sky_label(sky),
+        comp = replace(comp, grid=replace(grid, auto=degrid.method == "auto"))
+    log.info("sky %s: %d sources, %d directions with flux, predicted by %s%s", label,
              len(sources), comp.ndir, chosen,
-             f" ({grid.npix} x {grid.npix} pixels, epsilon {epsilon:g})" if comp.grid else "")
+             f" ({grid.npix} x {grid.npix} pixels, epsilon {degrid.epsilon:g})"
+             if comp.grid else "")
     return comp
-
-
-def _sky_cube(sky, ra0: float, dec0: float, fov_deg: float | None,
-              phase_centre_of: str = "") -> SkyCube | None:
-    """A pixel sky re-centred on ``ra0, dec0`` (rad) and cropped to ``fov_deg``; None for
-    point sources (a makesourcedb file or :class:`PointSources`). A cube centred
-    elsewhere is re-centred with a warning (:func:`_warn_recentre`)."""
-    import xarray as xr
-
-    label = sky_label(sky)
-    if isinstance(sky, (str, os.PathLike)):
-        if not os.path.exists(sky):
-            raise InputError(f"sky file {sky} does not exist")
-        if os.path.isdir(sky):
-            raise InputError(f"sky {sky} is a directory, not a FITS cube or makesourcedb "
-                             "file")
-        if not is_fits(sky):
-            return None
-        sky = read_cube(sky)
-    if isinstance(sky, xr.Dataset):
-        sky = cube_from_dataset(sky)
-    if not isinstance(sky, SkyCube):
-        return None
-    _warn_recentre(sky, ra0, dec0, label, phase_centre_of)
-    cube = recentre(sky, ra0, dec0)
-    return cube if fov_deg is None else crop(cube, fov_deg=fov_deg)
 
 
 #: a pixel sky whose centre differs from the phase centre by more than this in RA or Dec
@@ -247,34 +228,11 @@ def _warn_recentre(cube: SkyCube, ra0: float, dec0: float, label: str,
                 f" of {phase_centre_of}" if phase_centre_of else "")
 
 
-def sky_sources(sky, ra0: float, dec0: float, fov_deg: float | None):
-    """:class:`~msleak.sky.sources.PointSources` of a sky about the phase centre ``ra0,
-    dec0`` (rad), cropped to the central ``fov_deg`` (deg).
-
-    ``sky``: a path (FITS cube or makesourcedb file), a sky Dataset
-    (:func:`msleak.make_sky`), a :class:`~msleak.sky.cube.SkyCube` or
-    :class:`~msleak.sky.sources.PointSources`.
-    """
-    cube = _sky_cube(sky, ra0, dec0, fov_deg)
-    return _point_sources(sky, ra0, dec0, fov_deg) if cube is None else sources_from_cube(cube)
-
-
-def _point_sources(sky, ra0: float, dec0: float, fov_deg: float | None) -> PointSources:
-    """:func:`sky_sources` of a sky that is not a pixel sky (:func:`_sky_cube` gave None)."""
-    if isinstance(sky, (str, os.PathLike)):
-        sky = read_skymodel(sky)
-    if isinstance(sky, PointSources):
-        if fov_deg is None:
-            return sky
-        half = np.radians(fov_deg) / 2
-        l_, m_, n_ = sky.lmn(ra0, dec0)
-        return sky.select((np.abs(l_) <= half) & (np.abs(m_) <= half) & (n_ > 0))
-    raise InputError(f"sky must be a path, a sky Dataset (msleak.make_sky), a SkyCube or "
-                     f"PointSources, not {type(sky).__name__}")
-
-
-def sky_label(sky) -> str:
-    """How a sky is named in messages and provenance: its path, or its type in memory."""
-    if isinstance(sky, (str, os.PathLike)):
-        return str(sky)
-    return f"<in-memory {type(sky).__name__}>"
+def _within(sky: PointSources, ra0: float, dec0: float, fov_deg: float | None
+            ) -> PointSources:
+    """The sources of ``sky`` with |l|, |m| <= fov / 2 about ``ra0, dec0`` (rad), in front."""
+    if fov_deg is None:
+        return sky
+    half = np.radians(fov_deg) / 2
+    l_, m_, n_ = sky.lmn(ra0, dec0)
+    return sky.select((np.abs(l_) <= half) & (np.abs(m_) <= half) & (n_ > 0))

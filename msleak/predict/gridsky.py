@@ -33,10 +33,9 @@ __all__ = ["PixelGrid", "Geometry", "DegridRefused", "pixel_grid", "choose_metho
            "worth_degridding", "beam_support", "zenith_pass", "zenith_near", "subgrid_size",
            "degrid_geometry", "degrid_visibilities",
            "AUTO_MIN_PIXELS", "FALLBACK_MAX_PIXELS", "DEFAULT_NSUB", "FREE_CELLS",
-           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "DEGRID_PIXEL_BYTES", "METHODS",
+           "PLAN_NSUB", "PIXEL_BEAM_BYTES", "DEGRID_BATCH", "DEGRID_PIXEL_BYTES",
            "CONTRACT_MARGIN"]
 
-METHODS = ("auto", "direct", "degrid")
 #: ``method="auto"`` degrids pixel skies with at least this many pixels (docs/predict.md)
 AUTO_MIN_PIXELS = 6400
 #: ``method="auto"`` predicts a chunk of a pixel sky directly where cheaper only below
@@ -209,12 +208,13 @@ def choose_method(method: str, grid: PixelGrid | None, npixels: int, label: str,
     """``direct`` or ``degrid`` for one sky (refuses ``degrid`` where it cannot run)."""
     if method == "degrid":
         if not is_cube:
-            raise InputError(f"--method degrid needs a pixel sky (FITS cube, sky Dataset, "
-                             f"SkyCube); {label} is a list of point sources: use --method "
-                             "direct or auto")
+            raise InputError(f"method degrid needs a pixel sky (FITS cube, sky Dataset, "
+                             f"SkyCube); {label} is a list of point sources: use method "
+                             "direct or auto", param="method")
         if grid is None:
-            raise InputError(f"--method degrid: the pixels of {label} are not a square "
-                             "regular SIN grid about the phase centre; use --method direct")
+            raise InputError(f"method degrid: the pixels of {label} are not a square "
+                             "regular SIN grid about the phase centre; use method direct",
+                             param="method")
         _check_field(grid, label)
         return "degrid"
     if method == "direct" or grid is None or npixels < AUTO_MIN_PIXELS:
@@ -263,8 +263,8 @@ def _check_field(grid: PixelGrid, label: str) -> None:
     try:
         idg.subgrid_directions(grid.nsub or DEFAULT_NSUB, grid.npix, grid.dl)
     except ValueError as err:
-        raise InputError(f"--method degrid: {label}: {err} (--fov), or use --method "
-                         "direct") from None
+        raise InputError(f"method degrid: {label}: {err} (fov), or use method "
+                         "direct", param=("method", "fov")) from None
 
 
 def subgrid_size(grid: PixelGrid, support: float = 0.0) -> int:
@@ -276,7 +276,7 @@ def subgrid_size(grid: PixelGrid, support: float = 0.0) -> int:
         try:
             idg.w_layer_width(grid.nsub, grid.npix, grid.dl, grid.epsilon, support)
         except ValueError as err:
-            raise InputError(f"--nsub {grid.nsub}: {err}") from None
+            raise InputError(f"nsub {grid.nsub}: {err}", param="nsub") from None
         return grid.nsub
     need = 1.5 + idg.taper_halfwidth(grid.epsilon) + support + FREE_CELLS
     return max(DEFAULT_NSUB, 2 * math.ceil(need))
@@ -287,7 +287,7 @@ class DegridRefused(InputError):
     line, no remedy), the message adds the remedy."""
 
     def __init__(self, reason: str):
-        super().__init__(f"--method degrid: {reason}; use --method direct")
+        super().__init__(f"method degrid: {reason}; use method direct", param="method")
         self.reason = reason
 
 

@@ -2,10 +2,10 @@
 returned (docs/predict.md).
 
 A run predicts one or more skies, each into its own column, into one or more MSs. Every
-input is checked and every sky prepared before the first write
-(:mod:`msleak.predict.plan`); the time chunks (:mod:`msleak.predict.chunks`) are computed
-on a dask scheduler and written by this process, MS after MS, in time order, with the run
-state of each column kept up to date (:mod:`msleak.predict.runstate`). A refusal found
+input is checked and every sky read and prepared before the first write
+(:mod:`msleak.verbs.predict_plan`); the time chunks (:mod:`msleak.verbs.predict_chunks`) are
+computed on a dask scheduler and written by this process, MS after MS, in time order, with
+the run state of each column kept up to date (:mod:`msleak.verbs.predict_run`). A refusal found
 while running (an :class:`~msleak.errors.MsleakError` other than a lost worker) puts
 every MS back as it was (:class:`msleak.io.columns.Rollback`); an interruption (Ctrl-C, a
 kill, a lost worker, an unexpected failure) keeps what was written for a rerun.
@@ -30,11 +30,14 @@ from msleak.io.ms import append_history, check_ms, open_table
 from msleak.io.products import call_record
 from msleak.parallel import open_runner
 from msleak.parallel.runner import WorkerLost, parse_memory
-from msleak.predict import chunks, runstate
-from msleak.predict.gridsky import METHODS
-from msleak.predict.plan import make_plan, make_targets
+from msleak.predict.options import DegridOptions, Method
+from msleak.verbs import predict_chunks as chunks
+from msleak.verbs import predict_run as runstate
+from msleak.verbs.predict_plan import PredictResult, make_plan, make_targets
 
-__all__ = ["predict"]
+__all__ = ["predict", "PredictResult"]
+
+_DEGRID = DegridOptions()
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +54,9 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
-            workers: int | None = None, progress: bool = False, method: str = "auto",
-            epsilon: float = 1e-6, nsub: int | None = None):
+            workers: int | None = None, progress: bool = False,
+            method: Method = _DEGRID.method, epsilon: float = _DEGRID.epsilon,
+            nsub: int | None = _DEGRID.nsub):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
     Parameters
@@ -101,19 +105,17 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         Chunks computed at the same time (default: all cores / all worker threads).
     progress : bool
         Progress bar on stderr.
-    method : {"auto", "direct", "degrid"}
-        How pixel skies are predicted: "direct" sums every pixel as a point source;
-        "degrid" uses image-domain gridding (:mod:`msleak.predict.idg`; FITS cubes, sky
-        Datasets and SkyCubes only); "auto" (the default) degrids pixel skies of at least
+    method, epsilon, nsub
+        How pixel skies are predicted, and to what accuracy
+        (:class:`msleak.predict.options.DegridOptions`): "direct" sums every pixel as a
+        point source; "degrid" uses image-domain gridding (:mod:`msleak.predict.idg`;
+        FITS cubes, sky Datasets and SkyCubes only) to the relative accuracy ``epsilon``
+        (0 < epsilon < 1) with subgrids of ``nsub`` (even, >= 8; default from the beam's
+        measured spectrum, :func:`msleak.predict.gridsky.subgrid_size`); "auto" (the
+        default) degrids pixel skies of at least
         :data:`msleak.predict.gridsky.AUTO_MIN_PIXELS` pixels where its modelled cost is
         lower. Point-source skies are always predicted directly (docs/predict.md,
         "Image-domain gridding").
-    epsilon : float
-        Requested relative accuracy of the degridder (0 < epsilon < 1).
-    nsub : int, optional
-        Degridder subgrid size (even, >= 8); default: chosen per chunk from the beam's
-        measured spectrum and epsilon's taper, at least 32
-        (:func:`msleak.predict.gridsky.subgrid_size`); any |w| is served by w-layers.
 
     Returns
     -------
@@ -133,23 +135,25 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     options = beam_options(beam, diameter=diameter, element_model=element_model,
                            beam_file=beam_file)
     _check_options(paths, targets, double_column)
-    how = _method_options(method, epsilon, nsub)
+    degrid = DegridOptions(method, epsilon, nsub)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
-    plans = [make_plan(p, targets, beam=beam, centre_correction=centre_correction,
-                       interpolate_frequency=interpolate_frequency, dtype=dtype,
-                       field_sel=field, spw_sel=spw, beam_options=options,
-                       double_column=double_column, method=how) for p in paths]
+    runs = [runstate.new_run(make_plan(p, targets, beam=beam,
+                                       centre_correction=centre_correction,
+                                       interpolate_frequency=interpolate_frequency,
+                                       dtype=dtype, field_sel=field, spw_sel=spw,
+                                       beam_options=options, double_column=double_column,
+                                       degrid=degrid)) for p in paths]
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
     if in_memory:
-        arrays = _predict_in_memory(plans[0], scheduler, workers, budget, **args)
+        arrays = _predict_in_memory(runs[0], scheduler, workers, budget, **args)
         return arrays[0] if one_sky else arrays
-    _run(plans, scheduler, workers, budget, restart=restart, **args)
+    _run(runs, scheduler, workers, budget, restart=restart, **args)
     command = call_record(predict, given)
-    for plan in plans:
-        _append_history(plan, command)
-    results = [res for plan in plans for res in plan.results]
+    for run in runs:
+        _append_history(run, command)
+    results = [res for run in runs for res in run.results]
     return results[0] if single_ms and one_sky else results
 
 
@@ -164,24 +168,12 @@ def _check_options(paths: list[Path], targets: list, double_column: bool) -> Non
         raise InputError("double_column=True sets the type of the columns written; with "
                          "column=None use double=True (complex128 visibilities)")
     if double_column and any(t.column == "DATA" for t in targets):
-        raise InputError("--double-column makes new complex128 columns; DATA keeps its type: "
-                         "use --double to write DATA")
+        raise InputError("double_column makes new complex128 columns; DATA keeps its type: "
+                         "use double to write DATA", param=("double_column", "double"))
     if not in_memory:
         for p in paths:
             colio.check_writable(p)
             colio.repair_interrupted(p)  # header files a killed run may have truncated
-
-
-def _method_options(method: str, epsilon: float, nsub: int | None) -> dict:
-    """The checked ``method``, ``epsilon`` and ``nsub`` of a run."""
-    if method not in METHODS:
-        raise InputError(f"unknown predict method {method!r}; use {', '.join(METHODS)}")
-    if not 0.0 < float(epsilon) < 1.0:
-        raise InputError(f"--epsilon must be in (0, 1), got {epsilon}")
-    if nsub is not None and (int(nsub) != nsub or nsub < 8 or nsub % 2):
-        raise InputError(f"--nsub must be an even integer >= 8, got {nsub}")
-    return {"method": method, "epsilon": float(epsilon),
-            "nsub": None if nsub is None else int(nsub)}
 
 
 def _check_paths(ms_list: list) -> list[Path]:
@@ -198,46 +190,46 @@ def _check_paths(ms_list: list) -> list[Path]:
 
 
 @contextlib.contextmanager
-def _runner(plans: list, scheduler, workers, budget: int):
+def _runner(runs: list, scheduler, workers, budget: int):
     """The dask runner of a run; refuses the EveryBeam direct model off this process.
     A run whose skies are all degridded computes one chunk at a time on all cores
     (unless ``workers`` says otherwise): the degridder's kernel and FFTs are threaded,
     and a longer chunk shares its w-layer FFTs among more rows."""
     if workers is None and scheduler in ("threads", "sync") and all(
-            sky.grid is not None for plan in plans for comp in plan.skies.values()
+            sky.grid is not None for run in runs for comp in run.plan.skies.values()
             for sky in comp.skies):
         workers = 1
     with open_runner(scheduler, workers, budget) as runner:
         if runner.kind in ("processes", "distributed"):
-            for plan in plans:
-                model = chunks.registered_beam(plan.beam_token)
+            for run in runs:
+                model = chunks.registered_beam(run.plan.beam_token)
                 if type(model).__name__ == "EveryBeamDirect":
-                    raise InputError("--beam everybeam-direct reads the MS main table, which "
-                                     "stays locked while predict writes it; use --scheduler "
-                                     "threads or sync")
+                    raise InputError("beam everybeam-direct reads the MS main table, which "
+                                     "stays locked while predict writes it; use scheduler "
+                                     "threads or sync", param=("beam", "scheduler"))
         yield runner
 
 
-def _run(plans: list, scheduler, workers, budget: int, *, dtype, centre_correction: bool,
+def _run(runs: list, scheduler, workers, budget: int, *, dtype, centre_correction: bool,
          beam: str, restart: bool, progress: bool, t_start: float) -> None:
     """Create the columns, compute and write every chunk; undo the run if it is refused."""
     rollbacks: list[colio.Rollback] = []
     try:
-        with _runner(plans, scheduler, workers, budget) as runner:
-            runstate.create_columns(plans, rollbacks)
-            for plan in plans:
-                plan.timings["setup"] = _time.perf_counter() - t_start
-            bar = _progress_bar(sum(p.total_rows for p in plans), progress)
-            jobs = _all_chunks(plans, runner, dtype, centre_correction, beam,
+        with _runner(runs, scheduler, workers, budget) as runner:
+            runstate.create_columns(runs, rollbacks)
+            for run in runs:
+                run.timings["setup"] = _time.perf_counter() - t_start
+            bar = _progress_bar(sum(r.plan.total_rows for r in runs), progress)
+            jobs = _all_chunks(runs, runner, dtype, centre_correction, beam,
                                restart, bar, t_start)
             try:
-                _write_chunks(runner, jobs, plans, bar, t_start)
+                _write_chunks(runner, jobs, runs, bar, t_start)
             finally:
                 bar.close()
-                for plan in plans:
-                    if plan.stack is not None:
-                        plan.stack.close()
-                        plan.stack = None
+                for run in runs:
+                    if run.stack is not None:
+                        run.stack.close()
+                        run.stack = None
     except MsleakError as err:
         if not isinstance(err, WorkerLost):  # a refusal: undo; a lost worker: resumable
             for rollback in reversed(rollbacks):  # each puts back the table it found
@@ -248,14 +240,14 @@ def _run(plans: list, scheduler, workers, budget: int, *, dtype, centre_correcti
             rollback.close()
 
 
-def _all_chunks(plans, runner, dtype, centre_correction, beam, restart, bar, t_start):
+def _all_chunks(runs, runner, dtype, centre_correction, beam, restart, bar, t_start):
     """The chunks of every MS in write order; each MS is opened when its turn comes and
     finished right away when nothing is left to predict."""
     index = 0
-    for k, plan in enumerate(plans):
-        runstate.start(plan, restart, bar)
+    for k, run in enumerate(runs):
+        runstate.start(run, restart, bar)
         previous = None
-        for job in chunks.iter_chunks(k, plan, runner.memory_per_task, dtype,
+        for job in chunks.iter_chunks(k, run, runner.memory_per_task, dtype,
                                       centre_correction, beam, tasks=runner.workers):
             job.index = index
             index += 1
@@ -263,60 +255,61 @@ def _all_chunks(plans, runner, dtype, centre_correction, beam, restart, bar, t_s
                 yield previous
             previous = job
         if previous is None:
-            runstate.finish(plan, t_start)
+            runstate.finish(run, t_start)
         else:
             previous.last = True
             yield previous
 
 
-def _write_chunks(runner, jobs, plans: list, bar, t_start: float) -> None:
+def _write_chunks(runner, jobs, runs: list, bar, t_start: float) -> None:
     """Compute the chunks on ``runner`` and write them in order, updating the run states."""
     with contextlib.closing(runner.map(chunks.chunk_task, jobs)) as done:
         for job, (vis, timings, n_per_baseline) in done:
-            plan = plans[job.plan]
-            runstate.write_chunk(plan, job, vis)
+            run = runs[job.plan]
+            runstate.write_chunk(run, job, vis)
             del vis
-            _account(plan, job, timings, n_per_baseline)
+            _account(run, job, timings, n_per_baseline)
             bar.update(int(job.rows.size))
             if job.last:
-                runstate.finish(plan, t_start)
+                runstate.finish(run, t_start)
 
 
-def _account(plan, job, timings: dict, n_per_baseline: int) -> None:
-    """Add a task's stage timings, time slots and per-baseline rows to its plan, and log
-    its notes (sky index, line), the first of each sky (``plan.noted``)."""
-    plan.rows_per_baseline += n_per_baseline
+def _account(run, job, timings: dict, n_per_baseline: int) -> None:
+    """Add a task's stage timings, time slots and per-baseline rows to its run, and log
+    its notes (sky index, line), the first of each sky (``run.noted``)."""
+    run.rows_per_baseline += n_per_baseline
     for k, note in timings.pop("notes", []):
-        if k not in plan.noted:
-            plan.noted.add(k)
-            log.warning("%s: %s", plan.targets[k].label, note)
+        if k not in run.noted:
+            run.noted.add(k)
+            log.warning("%s: %s", run.plan.targets[k].label, note)
     for key, value in timings.items():
-        plan.timings[key] = plan.timings.get(key, 0.0) + value
-    plan.n_slots += int(job.times.size)
+        run.timings[key] = run.timings.get(key, 0.0) + value
+    run.n_slots += int(job.times.size)
 
 
-def _predict_in_memory(plan, scheduler, workers, budget: int, *, dtype, centre_correction,
+def _predict_in_memory(run, scheduler, workers, budget: int, *, dtype, centre_correction,
                        beam, progress, t_start) -> list:
     """Every chunk of one MS computed and gathered into one DataArray per sky (read-only)."""
+    plan = run.plan
     _check_one_layout(plan)
-    plan.active = list(range(len(plan.targets)))
+    run.active = list(range(len(plan.targets)))
     parts: list = []
-    with _runner([plan], scheduler, workers, budget) as runner, open_table(plan.ms) as table:
-        plan.table = table
-        plan.timings["setup"] = _time.perf_counter() - t_start
+    with _runner([run], scheduler, workers, budget) as runner, open_table(plan.ms) as table:
+        run.table = table
+        run.timings["setup"] = _time.perf_counter() - t_start
         bar = _progress_bar(plan.total_rows, progress)
         try:
-            jobs = chunks.iter_chunks(0, plan, runner.memory_per_task, dtype,
+            jobs = chunks.iter_chunks(0, run, runner.memory_per_task, dtype,
                                       centre_correction, beam, tasks=runner.workers)
             with contextlib.closing(runner.map(chunks.chunk_task, _numbered(jobs))) as done:
                 for job, (vis, timings, n_per_baseline) in done:
                     parts.append((job.rows, job.times[job.tidx], job.stations[job.p],
                                   job.stations[job.q], vis))
-                    _account(plan, job, timings, n_per_baseline)
+                    _account(run, job, timings, n_per_baseline)
                     bar.update(int(job.rows.size))
         finally:
             bar.close()
-            plan.table = None
+            run.table = None
     return _data_arrays(plan, parts)
 
 
@@ -357,10 +350,11 @@ def _data_arrays(plan, parts: list) -> list:
     return out
 
 
-def _append_history(plan, command: str) -> None:
+def _append_history(run, command: str) -> None:
     """One MS HISTORY row saying what the run wrote."""
+    plan = run.plan
     skies = "; ".join(f"{t.label} -> {t.column}{' (unchanged)' if r.skipped else ''}"
-                      for t, r in zip(plan.targets, plan.results))
+                      for t, r in zip(plan.targets, run.results))
     s = plan.settings[0]
     append_history(plan.ms, f"predict: {skies}; beam {s['beam']}, centre correction "
                             f"{'on' if s['centre_correction'] else 'off'}, {s['precision']}",

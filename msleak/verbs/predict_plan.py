@@ -7,7 +7,6 @@ the first write.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
@@ -18,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import xarray as xr
 
 from msleak import __version__
 from msleak.conventions import correlation_layout
@@ -33,11 +33,15 @@ from msleak.io.ms import (
     read_spectral_windows,
     read_used_antennas,
 )
-from msleak.predict.chunks import register_beam
-from msleak.predict.components import SkySet, sky_components, sky_label, sky_set
+from msleak.io.fits import cube_from_dataset, is_fits, read_cube
+from msleak.io.skymodel import read_skymodel
+from msleak.predict.components import SkySet, sky_components, sky_set
+from msleak.predict.options import DegridOptions
+from msleak.sky.cube import SkyCube
+from msleak.sky.sources import PointSources
+from msleak.verbs.predict_chunks import register_beam
 
-__all__ = ["Target", "Plan", "make_targets",
-           "make_plan"]
+__all__ = ["PredictResult", "Target", "Plan", "make_targets", "make_plan", "sky_label"]
 
 log = logging.getLogger(__name__)
 
@@ -68,21 +72,26 @@ class PredictResult:
 
 @dataclass(frozen=True)
 class Target:
-    """One sky of a run and the column it is predicted into (None: returned in memory)."""
+    """One sky of a run, read once (a :class:`SkyCube` or :class:`PointSources`), and the
+    column it is predicted into (None: returned in memory); ``path`` the file it was read
+    from (None: given in memory)."""
 
-    sky: object
+    sky: SkyCube | PointSources
     column: str | None
     fov_deg: float | None
     sha256: str
+    path: Path | None = None
+    given: str = ""
 
     @property
     def label(self) -> str:
-        return sky_label(self.sky)
+        return str(self.path) if self.path is not None else f"<in-memory {self.given}>"
 
 
-@dataclass
+@dataclass(frozen=True)
 class Plan:
-    """What to predict into one MS, and its run states while it is being written."""
+    """What to predict into one MS: its metadata, selected groups, skies and settings,
+    fixed before the first write (the run's state is :class:`msleak.verbs.predict_run.Run`)."""
 
     ms: Path
     fields_meta: list
@@ -96,22 +105,7 @@ class Plan:
     settings: list
     settings_json: list
     beam_token: str
-    results: list
-    timings: dict
     beam_options: dict = field(default_factory=dict)
-    #: per target: the Rollback of its column
-    rollbacks: list = field(default_factory=list)
-    #: targets this run computes (the others are complete from an identical run)
-    active: list = field(default_factory=list)
-    #: column -> run state, for the active targets
-    states: dict = field(default_factory=dict)
-    stack: contextlib.ExitStack | None = None
-    table: object = None
-    n_slots: int = 0
-    rows_per_baseline: int = 0
-    #: skies (target indices) whose chunk note (:func:`msleak.predict.chunks._geometry`)
-    #: has been logged
-    noted: set = field(default_factory=set)
     #: new columns are created complex128 (casacore DComplex)
     double_column: bool = False
 
@@ -126,15 +120,17 @@ def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
         len(skies) if column is None else 1)
     fovs = list(fov) if np.ndim(fov) == 1 else [fov]
     if not skies:
-        raise InputError("no sky given; pass --sky SKY")
+        raise InputError("no sky given; give one as `sky`", param="sky")
     if len(columns) != len(skies):
-        raise InputError(f"{len(skies)} --sky and {len(columns)} --column given; give one "
-                         "--column per --sky (they are matched in order)")
+        raise InputError(f"{len(skies)} `sky` and {len(columns)} `column` given; give one "
+                         "`column` per `sky` (they are matched in order)",
+                         param=("sky", "column"))
     if len(fovs) == 1:
         fovs = fovs * len(skies)
     if len(fovs) != len(skies):
-        raise InputError(f"--fov is given {len(fovs)} times for {len(skies)} --sky; give it "
-                         "once (for every sky) or once per --sky (matched in order)")
+        raise InputError(f"`fov` is given {len(fovs)} times for {len(skies)} `sky`; give it "
+                         "once (for every sky) or once per `sky` (matched in order)",
+                         param=("fov", "sky"))
     names = [c for c in columns if c is not None]
     if names and len(names) != len(columns):
         raise InputError("give every sky a column, or none (column=None returns the "
@@ -143,13 +139,16 @@ def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
         colio.check_column_name(name, overwrite_data=overwrite_data)
     for name in names:
         if names.count(name) > 1:
-            raise InputError(f"--column {name} is given {names.count(name)} times; give "
-                             "every --sky its own --column")
+            raise InputError(f"`column` {name} is given {names.count(name)} times; give "
+                             "every `sky` its own `column`", param=("column", "sky"))
     for value in fovs:
         if value is not None and not (0 < value <= 180):
-            raise InputError(f"--fov must be in (0, 180] deg, got {value}")
-    return [Target(sky=s, column=c, fov_deg=None if f is None else float(f),
-                   sha256=_digest(s)) for s, c, f in zip(_sky_inputs(skies), columns, fovs)]
+            raise InputError(f"fov must be in (0, 180] deg, got {value}", param="fov")
+    read: dict = {}
+    return [Target(sky=_read_sky(s, read), column=c, fov_deg=None if f is None else float(f),
+                   sha256=_digest(s), path=s if isinstance(s, Path) else None,
+                   given=type(s).__name__)
+            for s, c, f in zip(_sky_inputs(skies), columns, fovs)]
 
 
 def _sky_inputs(skies: list) -> list:
@@ -165,6 +164,29 @@ def _sky_inputs(skies: list) -> list:
                                  "file")
         out.append(sky)
     return out
+
+
+def _read_sky(sky, read: dict) -> SkyCube | PointSources:
+    """A sky file read (once per path, cached in ``read``), a sky Dataset converted; a
+    SkyCube or PointSources as it is."""
+    if isinstance(sky, Path):
+        key = sky.resolve()
+        if key not in read:
+            read[key] = read_cube(sky) if is_fits(sky) else read_skymodel(sky)
+        return read[key]
+    if isinstance(sky, xr.Dataset):
+        return cube_from_dataset(sky)
+    if isinstance(sky, (SkyCube, PointSources)):
+        return sky
+    raise InputError(f"sky must be a path, a sky Dataset (msleak.make_sky), a SkyCube or "
+                     f"PointSources, not {type(sky).__name__}")
+
+
+def sky_label(sky) -> str:
+    """How a sky is named in messages and provenance: its path, or its type in memory."""
+    if isinstance(sky, (str, os.PathLike)):
+        return str(sky)
+    return f"<in-memory {type(sky).__name__}>"
 
 
 def _digest(sky) -> str:
@@ -231,11 +253,10 @@ def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
 
 def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
               dtype, field_sel, spw_sel, beam_options: dict, double_column: bool = False,
-              method: dict | None = None) -> Plan:
+              degrid: DegridOptions = DegridOptions()) -> Plan:
     """Read the metadata of ``ms``, select its groups and prepare the skies (no writes);
-    ``double_column``: the columns are, or are created, complex128; ``method``: the
-    keywords ``method``, ``epsilon``, ``nsub`` of :func:`msleak.predict.engine.predict`."""
-    method = dict(method or {"method": "auto"})
+    ``double_column``: the columns are, or are created, complex128; ``degrid``: how pixel
+    skies are predicted."""
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
     _check_new_columns(ms, [t.column for t in targets if t.column is not None], double_column)
@@ -246,32 +267,28 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                     "the full coherency and writes those two (the cross hands are not "
                     "stored)", ms, d, ",".join(feeds[d].names))
     _check_rows(ms, groups)
-    site = (_array_site(ms, groups) if beam != "none" and method.get("method") != "direct"
+    site = (_array_site(ms, groups) if beam != "none" and degrid.method != "direct"
             else (None, 0.0))
     skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
-                                  interpolate_frequency, method, site,
+                                  interpolate_frequency, degrid, site,
                                   _field_text(ms, fields_meta, f)) for f, d in groups}
     token = uuid.uuid4().hex
     options = register_beam(token, beam, ms, groups, beam_options)
     common = {"beam": beam, "centre_correction": bool(centre_correction and beam != "none"),
               "interpolate_frequency": bool(interpolate_frequency),
               "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
-              **{k: v for k, v in method.items() if v is not None},
+              **degrid.settings(),
               "beam_options": dict(sorted(beam_options.items())),
               "msleak_version": __version__}
-    settings = [{"sky": str(t.sky.resolve()) if isinstance(t.sky, Path) else t.label,
+    settings = [{"sky": str(t.path.resolve()) if t.path is not None else t.label,
                  "sky_sha256": t.sha256,
                  "fov_deg": -1.0 if t.fov_deg is None else t.fov_deg, **common}
                 for t in targets]
-    timings: dict = {}
     return Plan(ms=ms, fields_meta=fields_meta, spw_meta=spw_meta, ddesc=ddesc,
                 groups=groups, feeds=feeds, total_rows=total_rows, targets=targets,
                 skies=skies, settings=settings,
                 settings_json=[json.dumps(s, sort_keys=True) for s in settings],
-                beam_token=token, beam_options=options, timings=timings,
-                results=[PredictResult(ms=ms, column=t.column, rows_written=0, groups=groups,
-                                       timings=timings) for t in targets],
-                double_column=double_column)
+                beam_token=token, beam_options=options, double_column=double_column)
 
 
 def _field_text(ms: Path, fields_meta: list, f: int) -> str:
@@ -296,7 +313,8 @@ def _array_site(ms: Path, groups: list) -> tuple[np.ndarray, float]:
     return site, float(np.arccos(np.clip(min(cos), -1.0, 1.0)))
 
 
-def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool, method: dict,
+def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool,
+                 degrid: DegridOptions,
                  site: tuple, phase_centre_of: str = "") -> SkySet:
     """The skies of one field and spectral window (each (sky, fov) read once);
     ``phase_centre_of`` names the field in the re-centring warning."""
@@ -304,15 +322,15 @@ def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool, meth
     for t in targets:
         key = _sky_key(t)
         if key not in comps:
-            comps[key] = sky_components(t.sky, freq, fmeta.ra, fmeta.dec, fov_deg=t.fov_deg,
-                                        interpolate=interpolate, site=site[0],
-                                        site_spread=site[1],
-                                        phase_centre_of=phase_centre_of, **method)
+            comps[key] = sky_components(t.sky, freq, fmeta.ra, fmeta.dec, label=t.label,
+                                        fov_deg=t.fov_deg, interpolate=interpolate,
+                                        degrid=degrid, site=site[0], site_spread=site[1],
+                                        phase_centre_of=phase_centre_of)
     return sky_set([comps[_sky_key(t)] for t in targets])
 
 
 def _sky_key(target: Target) -> tuple:
-    return (target.sky if isinstance(target.sky, Path) else id(target.sky), target.fov_deg)
+    return (id(target.sky), target.fov_deg)
 
 
 def _check_new_columns(ms: Path, columns: list[str], double: bool) -> None:
