@@ -3,18 +3,14 @@ on 21-cm power spectra, measured from any Measurement Set.
 
 The verbs below are the Python API; each ``msleak`` command is a thin wrapper over one of
 them (docs/api.md). They are imported on first use, so ``import msleak`` stays light.
-The package never configures logging itself; the command-line interface does. Importing
-it points casacore at a current leap-second table (:mod:`msleak.io.casacore_data`) unless
-the user configured casacore's data themselves.
+The package never configures logging itself; the command-line interface does. Importing it
+has no side effect: casacore is configured where msleak first uses it (:mod:`msleak.io`).
 """
 
 import importlib
 import logging
 
 from msleak.errors import ConfigurationError, InputError, MsleakError
-from msleak.io.casacore_data import configure_casacore_measures
-
-configure_casacore_measures()
 
 __version__ = "0.1.0"
 

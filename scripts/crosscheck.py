@@ -41,8 +41,9 @@ from msleak.study.config import FIELDS_OF_VIEW, StudyConfig  # noqa: E402
 from msleak.study.pipeline import study_steps  # noqa: E402
 from msleak.conventions import correlations_to_stokes, stokes_to_correlations  # noqa: E402,E501
 from msleak.errors import MsleakError  # noqa: E402
+from msleak.cli import run_command as run_msleak  # noqa: E402
 from msleak.study.steps import (ProcessInvoker, Step, StepRunner,  # noqa: E402
-                                predict_precision, run_msleak, step_failed)
+                                predict_precision, step_failed)
 
 #: first argument of the steps that run DP3 (every other step is an msleak command line)
 DP3_STEP = "dp3-predict"

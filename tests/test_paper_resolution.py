@@ -22,7 +22,8 @@ from msleak.cli import cli
 from msleak.predict.gridsky import AUTO_MIN_PIXELS
 from msleak.study.config import StudyConfig
 from msleak.study.pipeline import STUDY_FILE, run_study, study_steps
-from msleak.study.steps import StepRunner, run_msleak
+from msleak.cli import run_command as run_msleak
+from msleak.study.steps import StepRunner
 
 #: the definitions: observed LOFAR baselines, the paper's sky and its crops
 UV_MAX = 800.0

@@ -12,6 +12,7 @@ import logging
 import sys
 import warnings
 from pathlib import Path
+from typing import Sequence
 
 import click
 
@@ -19,7 +20,7 @@ from msleak import __version__
 from msleak.cli._flags import as_flags
 from msleak.errors import MsleakError
 
-__all__ = ["main", "cli"]
+__all__ = ["main", "cli", "run_command"]
 
 #: command name -> "module:function" (module relative to msleak.cli)
 COMMANDS = {
@@ -156,6 +157,21 @@ def _route_warnings() -> None:
 
 def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
     logging.getLogger("msleak.warnings").info("%s: %s", category.__name__, _one_line(message))
+
+
+def run_command(args: Sequence[str]) -> int:
+    """Run one msleak command line (with its global options) in this process; its exit
+    status."""
+    try:
+        rc = cli.main(args=list(args), prog_name="msleak", standalone_mode=False)
+    except click.ClickException as error:
+        error.show()
+        rc = error.exit_code
+    except click.exceptions.Abort:
+        rc = 1
+    except SystemExit as exit_:
+        rc = exit_.code
+    return rc if isinstance(rc, int) else 0
 
 
 def main() -> None:

@@ -11,8 +11,8 @@ list's expiry less 180 days, so casacore's warning still appears, exactly when t
 has expired and a newly announced leap second could be missing. docs/conventions.md
 ("Leap seconds") says more.
 
-It must run before casacore first reads its resource files, so ``msleak/__init__`` calls
-it; it imports neither casacore nor astropy in this process (the table is written by a
+It must run before casacore first reads its resource files, so ``msleak/io/__init__``
+calls it; it imports neither casacore nor astropy in this process (the table is written by a
 child process the first time).
 """
 

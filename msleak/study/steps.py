@@ -13,6 +13,7 @@ reads a file it writes, or that it names in ``after``.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import logging
 import os
@@ -32,6 +33,7 @@ from msleak import __version__ as MSLEAK_VERSION
 from msleak.errors import MsleakError
 
 __all__ = ["Step", "StepRunner", "ProcessInvoker", "step_failed", "dependencies",
+           "COMMAND_RUNNER",
            "predict_precision"]
 
 log = logging.getLogger(__name__)
@@ -216,6 +218,10 @@ class StepRunner:
             raise errors[0]
 
 
+#: the function that runs one msleak command line in a worker process (imported there)
+COMMAND_RUNNER = "msleak.cli:run_command"
+
+
 class ProcessInvoker:
     """``invoke(args, label)`` for steps run at once: each command line runs in one of up
     to ``workers`` msleak worker processes (started on first use, each importing msleak
@@ -225,8 +231,10 @@ class ProcessInvoker:
     which interrupts every running step (each then leaves its files readable). A worker
     whose parent has gone interrupts its step itself.
 
-    ``run(args)`` is the function a worker calls, returning an exit status (a module-level
-    function; by default msleak's command line). ``rerun`` is the command line that
+    ``run(args)`` is the function a worker calls, returning an exit status: a module-level
+    function, or its dotted path ``"module:function"``, imported by the worker; by default
+    msleak's command line (:data:`COMMAND_RUNNER`, which the study names and never
+    imports). ``rerun`` is the command line that
     resumes the run, named in errors (default ``msleak COMMAND``)."""
 
     labels_output = True
@@ -238,7 +246,7 @@ class ProcessInvoker:
         self.global_args = list(global_args)
         self.command = command
         self.rerun = rerun or f"msleak {command}"
-        self.run = run or run_msleak
+        self.run = run or COMMAND_RUNNER
         self._context = multiprocessing.get_context("spawn")
         self._idle: queue.Queue = queue.Queue()
         for _ in range(workers):
@@ -330,25 +338,6 @@ def _end_worker(proc, conn) -> None:
     conn.close()
 
 
-def run_msleak(args: Sequence[str]) -> int:
-    """Run one msleak command line (with its global options) in this process; its exit
-    status."""
-    import click
-
-    from msleak.cli import cli
-
-    try:
-        rc = cli.main(args=list(args), prog_name="msleak", standalone_mode=False)
-    except click.ClickException as error:
-        error.show()
-        rc = error.exit_code
-    except click.exceptions.Abort:
-        rc = 1
-    except SystemExit as exit_:
-        rc = exit_.code
-    return rc if isinstance(rc, int) else 0
-
-
 class _Prefixed:
     """A text stream that puts ``prefix`` in front of every line written to ``stream``."""
 
@@ -376,12 +365,20 @@ class _Prefixed:
         return getattr(self.stream, name)
 
 
+def _resolve(run):
+    if not isinstance(run, str):
+        return run
+    module, _, name = run.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
 def _worker_main(conn, run, parent: int) -> None:
     """A worker process: run each command line it is sent, send back its exit status,
     until sent ``None``. SIGINT (from ``ProcessInvoker.stop``) interrupts a running step;
     one that arrives between steps makes the next step return 130 without running. If
     the parent process goes, the running step is interrupted."""
     os.setsid()
+    run = _resolve(run)
     state = {"running": False, "interrupted": False}
 
     def on_sigint(signum, frame):
