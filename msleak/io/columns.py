@@ -125,10 +125,11 @@ def check_column_name(name: str, *, overwrite_data: bool = False) -> None:
                          "(e.g. MODEL_DATA)")
     if name.upper() in _RESERVED:
         raise InputError(f"column {name} holds MS metadata, not visibilities; choose another "
-                         "--column (e.g. MODEL_DATA)")
+                         "`column` (e.g. MODEL_DATA)", param="column")
     if name == "DATA" and not overwrite_data:
-        raise InputError("refusing to overwrite the DATA column; pass --overwrite-data with "
-                         "--column DATA, or write into another column (default MODEL_DATA)")
+        raise InputError("refusing to overwrite the DATA column; pass overwrite_data with "
+                         "`column` DATA, or write into another column (default MODEL_DATA)",
+                         param=("overwrite_data", "column"))
 
 
 def _tile_shape(cell_shape: tuple[int, ...], target_bytes: int = 1 << 20) -> list[int]:
@@ -167,17 +168,18 @@ def check_data_column(table, name: str, like: str = "DATA", double: bool = False
         have = table.getcoldesc(name)
         if have.get("valueType") not in ("complex", "dcomplex") or have.get("ndim", 0) == 0:
             raise InputError(f"column {name} exists but is not a complex visibility column "
-                             f"({have.get('valueType')}); choose another --column")
+                             f"({have.get('valueType')}); choose another `column`",
+                             param="column")
         if (table.nrows() and table.iscelldefined(like, 0) and table.iscelldefined(name, 0)
                 and table.getcolshapestring(name, 0, 1) != table.getcolshapestring(like, 0, 1)):
             raise InputError(f"column {name} exists with another shape than {like}; "
-                             "choose another --column")
+                             "choose another `column`", param="column")
         if double and have.get("valueType") != "dcomplex":
             raise InputError(f"column {name} exists as complex64, which would round "
-                             "--double-column's values; choose another --column, or remove "
+                             "the values of double_column; choose another `column`, or remove "
                              f"it first (TaQL: ALTER TABLE <ms> DROP COLUMN {name}); in a "
                              "msleak paper or forecast OUTDIR of an earlier msleak, rerun "
-                             "with --overwrite")
+                             "with overwrite", param=("double_column", "column", "overwrite"))
         return True
     itemsize = 16 if double else 8
     cell_bytes = itemsize * int(np.prod(table.getcell(like, 0).shape)) if table.nrows() else 0

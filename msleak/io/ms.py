@@ -280,12 +280,12 @@ def resolve_field(ms: str | os.PathLike, field: int | str) -> int:
         index = int(text)
         if not 0 <= index < len(names):
             raise InputError(f"{ms}: no FIELD_ID {index} (the MS has {len(names)} fields); "
-                             "give --field ID or NAME")
+                             "give `field` ID or NAME", param="field")
         return index
     if text not in names:
         raise InputError(f"{ms}: no field named {text!r} (fields: "
                          f"{', '.join(f'{i}:{n}' for i, n in enumerate(names))}); "
-                         "give --field ID or NAME")
+                         "give `field` ID or NAME", param="field")
     return names.index(text)
 
 
@@ -295,7 +295,7 @@ def resolve_spw(ms: str | os.PathLike, spw: int) -> int:
     if int(spw) not in spws:
         raise InputError(f"{ms}: no spectral window {spw} in the DATA_DESCRIPTION table "
                          f"(spectral windows: {', '.join(map(str, sorted(set(spws))))}); "
-                         "give one with --spw")
+                         "give one with `spw`", param="spw")
     return spws.index(int(spw))
 
 

@@ -111,15 +111,17 @@ class ForecastConfig:
             if getattr(self, key) is None:
                 setattr(self, key, value)
         if self.stations < 2 or self.seeds < 1 or self.nchan < 8:
-            raise InputError("--stations must be at least 2, --seeds 1 and --nchan 8")
+            raise InputError("stations must be at least 2, seeds 1 and nchan 8",
+                             param=("stations", "seeds", "nchan"))
         if not (self.duration_h > 0 and self.interval_s > 0
                 and self.duration_h * 3600 >= self.interval_s):
-            raise InputError(f"--duration ({self.duration_h} h) and --interval "
+            raise InputError(f"duration_h ({self.duration_h} h) and interval_s "
                              f"({self.interval_s} s) must be positive, the duration at least "
-                             "one interval")
+                             "one interval", param=("duration_h", "interval_s"))
         if "hera" in self.telescopes and SETUPS["hera"].freq_min(self.nchan) < 100e6:
-            raise InputError(f"--nchan {self.nchan} channels of {_CHAN_WIDTH / 1e3:g} kHz do "
-                             "not fit HERA's beam file (100-145 MHz): use at most 231")
+            raise InputError(f"nchan {self.nchan} channels of {_CHAN_WIDTH / 1e3:g} kHz do "
+                             "not fit HERA's beam file (100-145 MHz): use at most 231",
+                             param="nchan")
 
     @property
     def realisations(self) -> list[int]:

@@ -141,8 +141,9 @@ def _claim_outdir(cfg: StudyConfig, overwrite: bool) -> None:
     out = Path(cfg.outdir)
     made = study_resolution(out)
     if made is not None and made != cfg.resolution and not overwrite:
-        raise InputError(f"{out} holds a --resolution {made} study; give another OUTDIR "
-                         f"for --resolution {cfg.resolution}, or --overwrite to replace it")
+        raise InputError(f"{out} holds a resolution {made} study; give another OUTDIR "
+                         f"for resolution {cfg.resolution}, or overwrite to replace it",
+                         param=("resolution", "overwrite"))
     if made != cfg.resolution:
         (out / STUDY_FILE).write_text(json.dumps({"resolution": cfg.resolution}) + "\n")
 
