@@ -64,74 +64,49 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     ms : path or sequence of paths
         Measurement Set(s), written in place (e.g. one per subband; each gets every sky).
     sky : path, sky Dataset, SkyCube, PointSources, or a sequence of them
-        A FITS cube (one point source per pixel, spectrum = the cube's channels) or a
-        makesourcedb file, or in memory (the Dataset :func:`msleak.make_sky` returns). Several skies are predicted in one pass,
-        each into its own column, the beam evaluated once per chunk towards the union of
-        their directions; each column equals a run with its sky alone (docs/predict.md).
+        A FITS cube (one point source per pixel) or makesourcedb file, or in memory (the
+        Dataset of :func:`msleak.make_sky`). Several skies are predicted in one pass, each
+        into its own column and equal to a run with it alone (docs/predict.md).
     column : str, sequence of str, or None
         Target column of each sky (all different), created like DATA if missing; DATA
-        needs ``overwrite_data``. None: nothing is written (the MS is opened read-only)
-        and the visibilities are returned.
+        needs ``overwrite_data``. None: the MS is opened read-only and the visibilities
+        are returned.
     fov : float or sequence of float, optional
         Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
-    beam : {"everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole", "none"}
-    diameter : float, optional
-        ``dipole`` beam: station diameter (m) instead of ANTENNA::DISH_DIAMETER.
-    element_model : str, optional
-        ``everybeam``: EveryBeam's element response model; ``hyperbeam``: 'analytic'
-        (default) or 'fee' (docs/telescopes.md).
-    beam_file : path, optional
-        ``uvbeam``: a UVBeam-readable E-field beam (default pyuvsim's HERA beam);
-        ``hyperbeam`` with 'fee': the MWA FEE HDF5 file.
+    beam, diameter, element_model, beam_file
+        The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
+        'dipole' or 'none') and its options (:func:`msleak.adapters.beams.load_beam`).
     centre_correction : bool
         Remove the beam at the phase centre: V' = J_p(s0)^-1 V J_q(s0)^-H.
     interpolate_frequency : bool
         Interpolate a tabulated sky linearly to the MS channels instead of requiring a match.
-    double : bool
-        complex128 arithmetic (default complex64; phases are always float64).
-    double_column : bool
-        Create the columns as complex128 (casacore DComplex), so that they keep the
-        complex128 values (implies ``double``); an existing column must be complex128
-        already; not with DATA. Only for columns that msleak grid reads: DP3 and WSClean
-        cannot open a complex128 column (docs/predict.md, "Output").
+    double, double_column : bool
+        complex128 arithmetic (default complex64; phases always float64); also create the
+        columns as complex128, which msleak grid reads and DP3 and WSClean cannot (not DATA).
     field, spw : id or name, or a sequence of them, optional
         FIELD ids or names, SPECTRAL_WINDOW ids; default all present.
-    memory_limit : str or float
-        Working-set budget ("2GB", "512MB" or bytes), shared by the tasks in flight.
+    memory_limit, scheduler, workers, progress
+        Working-set budget ("2GB" or bytes) shared by the chunks in flight, where they run
+        (docs/parallel.md), how many at once (default all cores), a progress bar on stderr.
     overwrite_data, restart : bool
         Allow ``column="DATA"``; start over instead of resuming an interrupted run.
-    scheduler : {"threads", "processes", "sync"}, str or distributed.Client
-    workers : int, optional
-        Chunks computed at the same time (default: all cores / all worker threads).
-    progress : bool
-        Progress bar on stderr.
     method, epsilon, nsub
-        How pixel skies are predicted, and to what accuracy
-        (:class:`msleak.predict.options.DegridOptions`): "direct" sums every pixel as a
-        point source; "degrid" uses image-domain gridding (:mod:`msleak.predict.idg`;
-        FITS cubes, sky Datasets and SkyCubes only) to the relative accuracy ``epsilon``
-        (0 < epsilon < 1) with subgrids of ``nsub`` (even, >= 8; default from the beam's
-        measured spectrum, :func:`msleak.predict.gridsky.subgrid_size`); "auto" (the
-        default) degrids pixel skies of at least
-        :data:`msleak.predict.gridsky.AUTO_MIN_PIXELS` pixels where its modelled cost is
-        lower. Point-source skies are always predicted directly (docs/predict.md,
-        "Image-domain gridding").
+        How pixel skies are predicted and to what accuracy
+        (:class:`msleak.predict.options.DegridOptions`, docs/predict.md).
 
     Returns
     -------
     PredictResult (one MS and one sky given as a single object), else a list of them, MS
     by MS, sky by sky; with ``column=None`` an ``xr.DataArray`` (row, chan, corr) per sky
-    (a list when ``sky`` is a sequence), coordinates row (main-table row), time (MJD s),
-    antenna1, antenna2, freq (Hz), corr (names).
+    (a list when ``sky`` is a sequence), coordinates row, time (MJD s), antenna1, antenna2,
+    freq (Hz), corr.
     """
     given = dict(locals())
-
     t_start = _time.perf_counter()
     single_ms = isinstance(ms, (str, os.PathLike))
     paths = _check_paths([ms] if single_ms else list(ms))
     targets = make_targets(sky, column, fov, overwrite_data)
     budget = parse_memory(memory_limit)
-    in_memory = targets[0].column is None
     options = beam_options(beam, diameter=diameter, element_model=element_model,
                            beam_file=beam_file)
     _check_options(paths, targets, double_column)
@@ -146,7 +121,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
-    if in_memory:
+    if targets[0].column is None:
         arrays = _predict_in_memory(runs[0], scheduler, workers, budget, **args)
         return arrays[0] if one_sky else arrays
     _run(runs, scheduler, workers, budget, restart=restart, **args)
