@@ -5,7 +5,8 @@ line; anything else is an unexpected failure (exit status 1). A message names th
 parameters it is about (``epsilon must be in (0, 0.1)``) and lists them in ``param``; the
 command line shows each as the flag that sets it (``--epsilon``), so the library never
 spells a flag. Where a name is also an ordinary word of the message, the message quotes the
-parameter in backticks (`` `sky` ``) and only those occurrences become flags.
+parameter in backticks (`` `sky` ``) and only those occurrences become flags; a remedy
+quoted as a Python setting (`` `beam='dipole'` ``) becomes the option (`` `--beam dipole` ``).
 """
 
 from __future__ import annotations

@@ -34,15 +34,18 @@ def flag_for(param: str, command: click.Command | None = None) -> str:
 
 
 def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
-    """``err``'s message with each parameter it names written as its flag: where the
-    message quotes the name in backticks (`` `sky` ``), those occurrences only, else every
-    occurrence as a whole word."""
+    """``err``'s message with each parameter it names written as its flag. A quoted setting
+    `` `beam='dipole'` `` becomes `` `--beam dipole` ``; a quoted name (`` `sky` ``) becomes
+    the flag; a parameter quoted neither way is replaced wherever it stands as a word."""
     text = str(err)
     for param in getattr(err, "params", ()):
         flag = flag_for(param, command)
+        text, settings = re.subn(
+            rf"`{re.escape(param)}=(?:'([^'`]*)'|\"([^\"`]*)\"|([^`]*))`",
+            lambda m: f"`{flag} {next(g for g in m.groups() if g is not None)}`", text)
         quoted = f"`{param}`"
         if quoted in text:
             text = text.replace(quoted, flag)
-        else:
+        elif not settings:
             text = re.sub(rf"(?<![\w\-`']){re.escape(param)}(?![\w\-])", flag, text)
     return text
