@@ -22,7 +22,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from msleak.beam import load_beam
+from msleak.adapters.beams import load_beam
 from msleak.beam.base import JonesFactors, centre_inverse
 from msleak.conventions import CorrelationLayout
 from msleak.io import columns as colio
