@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 _VERBS = {
     "simulate": "msleak.telescope.simulate:simulate",
     "make_sky": "msleak.sky.make:make_sky",
-    "beam_maps": "msleak.beam.maps:beam_maps",
+    "beam_maps": "msleak.verbs.beam_maps:beam_maps",
     "predict": "msleak.predict",
     "grid": "msleak.ps.grid:grid",
     "transform": "msleak.ps.transform:transform",

@@ -9,9 +9,10 @@ Two facts about the PyPI wheels (documented in the README):
   its data tables (leap seconds, observatories) available, otherwise EveryBeam fails with
   "Cannot read leap second table".
 
-Which telescopes the wheel's ``load_telescope`` accepts (:func:`everybeam_telescope`) and
-where its MWA beam finds the MWA FEE coefficients (:data:`MWA_BEAM_FILE_VARIABLE`) are
-stated here too, so msleak can refuse an MS before EveryBeam prints or raises anything.
+Which telescopes the wheel's ``load_telescope`` accepts (:func:`everybeam_telescope`),
+where its MWA beam finds the MWA FEE coefficients (:data:`MWA_BEAM_FILE_VARIABLE`) and
+which MWA dipole delays it and mwa_hyperbeam take (:func:`check_delays`) are stated here
+too, so msleak can refuse an MS before EveryBeam prints or raises anything.
 """
 
 from __future__ import annotations
@@ -20,10 +21,13 @@ import os
 import sys
 from pathlib import Path
 
-from msleak.errors import ConfigurationError
+import numpy as np
+
+from msleak.errors import ConfigurationError, InputError
 
 __all__ = ["import_everybeam", "everybeam_datadir", "everybeam_telescope",
-           "EVERYBEAM_TELESCOPES", "MWA_BEAM_FILE_VARIABLE", "MWA_BEAM_FILE_NAME"]
+           "EVERYBEAM_TELESCOPES", "MWA_BEAM_FILE_VARIABLE", "MWA_BEAM_FILE_NAME",
+           "check_delays"]
 
 #: TELESCOPE_NAME (compared in upper case, as EveryBeam does) -> the EveryBeam telescope the
 #: everybeam 0.9.0 Python bindings load for it; names starting with "OSKAR" load OSKAR too.
@@ -36,6 +40,16 @@ EVERYBEAM_TELESCOPES = {"LOFAR": "LOFAR", "AARTFAAC": "AARTFAAC", "MWA": "MWA",
 #: passed as ``coeff_path``); msleak takes it from the variable mwa_hyperbeam also reads.
 MWA_BEAM_FILE_VARIABLE = "MWA_BEAM_FILE"
 MWA_BEAM_FILE_NAME = "mwa_full_embedded_element_pattern.h5"
+
+
+def check_delays(delays) -> np.ndarray:
+    """``delays`` as a (16,) int64 array, refused unless 16 integers in 0..32."""
+    values = np.asarray(delays)
+    if values.shape != (16,) or values.dtype.kind not in "iu" or np.any(
+            (values < 0) | (values > 32)):
+        raise InputError("MWA dipole delays must be 16 integers from 0 to 32 (32 = dead "
+                         f"dipole), got {np.array2string(values.ravel()[:17], separator=',')}")
+    return values.astype(np.int64)
 
 
 def everybeam_telescope(telescope_name: str) -> str | None:
@@ -69,7 +83,7 @@ def import_everybeam():
     except ImportError as err:
         raise ConfigurationError(
             "the everybeam package is not importable; install it with "
-            "`pip install everybeam==0.9.0` or use `--beam dipole`") from err
+            "`pip install everybeam==0.9.0` or use beam='dipole'") from err
     if not (Path(os.environ["EVERYBEAM_DATADIR"]) / "HamakerHBACoeff.h5").exists():
         raise ConfigurationError(
             f"EveryBeam coefficient files not found in {os.environ['EVERYBEAM_DATADIR']}; "

@@ -11,7 +11,7 @@ quoted as a Python setting (`` `beam='dipole'` ``) becomes the option (`` `--bea
 
 from __future__ import annotations
 
-__all__ = ["MsleakError", "InputError", "ConfigurationError"]
+__all__ = ["MsleakError", "InputError", "ConfigurationError", "BeamUnavailable"]
 
 
 class MsleakError(Exception):
@@ -37,3 +37,15 @@ class InputError(MsleakError, ValueError):
 
 class ConfigurationError(MsleakError, RuntimeError):
     """A dependency or the environment is not in the state msleak needs."""
+
+
+class BeamUnavailable(InputError):
+    """A beam model cannot describe an MS: ``reason`` says why, ``setting`` is an optional
+    fix of the environment (e.g. an environment variable), ``remedy`` the command-line way
+    on; the message is ``reason; [setting, or ]remedy``.  Commands whose options differ
+    (``msleak grid``) re-raise it with their own remedy."""
+
+    def __init__(self, reason: str, remedy: str = "use `--beam dipole` (analytic beam)",
+                 setting: str = ""):
+        self.reason, self.remedy, self.setting = reason, remedy, setting
+        super().__init__(f"{reason}; {setting + ', or ' if setting else ''}{remedy}")

@@ -59,8 +59,8 @@ def main(argv=None) -> int:
 
     import numba
 
-    from msleak.beam import load_beam
-    from msleak.beam.everybeam_direct import EveryBeamDirect
+    from msleak.adapters.beams import load_beam
+    from msleak.adapters.everybeam import EveryBeamDirect
     from msleak.io.ms import read_spectral_windows, read_times
     from msleak.telescope.simulate import simulate
 

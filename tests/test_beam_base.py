@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from msleak.beam import invert_2x2, load_beam
+from msleak.adapters.beams import load_beam
+from msleak.beam import invert_2x2
 from msleak.errors import InputError
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from msleak.beam import load_beam
+from msleak.adapters.beams import load_beam
 from msleak.beam.dipole import DipoleBeam, dipole_jones, station_factor
 from msleak.errors import InputError
 

@@ -7,12 +7,14 @@ import copy
 import numpy as np
 import pytest
 
-from msleak.beam import jones_to_mueller, leakage, load_beam
-from msleak.beam.coords import exact_j2000_to_itrf, itrf_map, radec_to_unit
-from msleak.beam.everybeam_direct import EveryBeamDirect
+from msleak.adapters.beams import load_beam
+from msleak.adapters.everybeam import EveryBeamDirect
+from msleak.beam import jones_to_mueller, leakage
+from msleak.beam.coords import itrf_map, radec_to_unit
 from msleak.beam.lofar_fast import LofarFastBeam
 from msleak.beam.maps import sin_grid
 from msleak.errors import InputError
+from msleak.io.measures import exact_j2000_to_itrf
 from msleak.io.ms import read_spectral_windows, read_times
 
 pytest.importorskip("everybeam")

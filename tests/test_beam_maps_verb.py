@@ -73,7 +73,7 @@ def test_verb_output_refused_then_overwritten(small_lofar_ms, tmp_path):
     written = open_product(out, "beam")
     np.testing.assert_array_equal(written["mueller"].values, ds["mueller"].values)
     with pytest.raises(msleak.InputError, match="exists; choose another name or pass "
-                                                "--overwrite"):
+                                                "overwrite"):
         msleak.beam_maps(small_lofar_ms, npix=3, beam="dipole", output=out)
     again = msleak.beam_maps(small_lofar_ms, npix=3, hour_angles=[0], beam="dipole",
                              output=out, overwrite=True)
@@ -105,7 +105,7 @@ def test_no_pdf(small_lofar_ms, tmp_path):
 
 @pytest.mark.parametrize("beam", ["dipole", "everybeam"])
 def test_field_selects_pointing_and_rows(small_lofar_ms, tmp_path, beam):
-    from msleak.beam import load_beam
+    from msleak.adapters.beams import load_beam
 
     ms = small_lofar_ms
     with pt.table(f"{ms}/FIELD", ack=False) as t:
@@ -150,13 +150,13 @@ def test_new_option_errors(small_lofar_ms, tmp_path, args, message):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(fov=0.0), "--fov must be between 0 and 180 degrees"),
-    (dict(npix=4.5), "--npix must be an integer"),
-    (dict(freq=-5.0), "--freq must be positive"),
-    (dict(beam="none"), "unknown --beam 'none'"),
-    (dict(beam="everybeam", diameter=30.0), "--diameter applies to --beam dipole only"),
+    (dict(fov=0.0), "fov must be between 0 and 180 degrees"),
+    (dict(npix=4.5), "npix must be an integer"),
+    (dict(freq=-5.0), "freq must be positive"),
+    (dict(beam="none"), "unknown beam 'none'"),
+    (dict(beam="everybeam", diameter=30.0), "diameter applies to beam 'dipole' only"),
     (dict(basis="sky"), "unknown Q,U basis 'sky'"),
-    (dict(station="CS999HBA0"), "--station 'CS999HBA0' is not an antenna"),
+    (dict(station="CS999HBA0"), "station 'CS999HBA0' is not an antenna"),
 ])
 def test_verb_errors(small_lofar_ms, kwargs, message):
     with pytest.raises(msleak.InputError, match=message):
@@ -207,8 +207,9 @@ def test_lofar_readers_return_what_simulate_wrote(small_lofar_ms):
 def test_lofar_array_refusals(tmp_path, small_lofar_ms):
     """The LOFAR layout is refused with the dipole remedy when tables or rows are missing."""
     from casa_ms import build_ms
+    from msleak.adapters.beams import read_lofar_array
     from msleak.beam import BeamUnavailable
-    from msleak.beam.lofar_array import lofar_array, read_lofar_array
+    from msleak.beam.lofar_array import lofar_array
     from msleak.io.lofar import read_lofar_antenna_fields, read_lofar_phase_references
     from msleak.io.ms import read_antennas, read_beam_directions
 

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 
 from casa_ms import build_ms
-from msleak.beam.base import BeamUnavailable
-from msleak.beam.mwa import MwaBeam
-from msleak.errors import InputError
+from msleak.adapters.beams import mwa_from_ms
+from msleak.errors import BeamUnavailable, InputError
 from msleak.io.ms import open_table, read_antennas
 from msleak.io.mwa import read_mwa_delays, write_mwa_tile_pointing
 
@@ -107,7 +106,7 @@ def _field_directions(ra0, dec0):
 
 # -- 1. Jones against hyperbeam in an independently built basis ---------------------------
 def test_analytic_equals_hyperbeam_in_the_sky_basis(mwa_ms):
-    beam = MwaBeam.from_ms(mwa_ms)
+    beam = mwa_from_ms(mwa_ms)
     centre = read_antennas(mwa_ms).positions[:5].mean(axis=0)
     ra, dec = _field_directions(*beam.phase_centre)
     t, f = T0 + 1800.0, FREQ0 + DF
@@ -124,7 +123,7 @@ def test_analytic_equals_hyperbeam_in_the_sky_basis(mwa_ms):
 
 
 def test_fee_equals_hyperbeam_in_the_sky_basis(mwa_ms, fee_file):
-    beam = MwaBeam.from_ms(mwa_ms, element_model="fee", beam_file=fee_file)
+    beam = mwa_from_ms(mwa_ms, element_model="fee", beam_file=fee_file)
     centre = read_antennas(mwa_ms).positions[:5].mean(axis=0)
     ra, dec = _field_directions(*beam.phase_centre)
     t = T0 + 600.0
@@ -144,7 +143,7 @@ def test_sky_basis_agrees_with_hyperbeams_parallactic_rotation(tmp_path, fee_fil
     t = 51544.5 * 86400.0
     ms = build_ms(tmp_path / "j2000.ms", time0_s=t, nchan=1, freq0_hz=FREQ0, ntime=1)
     centre = read_antennas(ms).positions[:5].mean(axis=0)
-    beam = MwaBeam.from_ms(ms, element_model="fee", beam_file=fee_file)
+    beam = mwa_from_ms(ms, element_model="fee", beam_file=fee_file)
     ra, dec = _field_directions(*_zenith_radec(t, centre))
     got = beam.jones([t], [FREQ0], ra, dec, stations=[0])[0, 0, 0]
     az, el = _azel(ra, dec, t, centre)
@@ -184,7 +183,7 @@ def test_zenith_dipoles_see_north_and_east(mwa_ms):
     North component and the E-W one only East, both with the same positive gain; the
     only mixing is the small angle between local North and msleak's North (towards the
     J2000 pole; precession since J2000, aberration), which casacore gives here."""
-    beam = MwaBeam.from_ms(mwa_ms)
+    beam = mwa_from_ms(mwa_ms)
     centre = read_antennas(mwa_ms).positions[:5].mean(axis=0)
     t = T0 + 900.0
     ra_z, dec_z = _zenith_radec(t, centre)
@@ -204,7 +203,7 @@ def test_zenith_dipoles_see_north_and_east(mwa_ms):
 
 # -- 3. the phase-centre correction ------------------------------------------------------
 def test_centre_correction_is_the_identity_at_the_phase_centre(mwa_ms):
-    beam = MwaBeam.from_ms(mwa_ms)
+    beam = mwa_from_ms(mwa_ms)
     ra0, dec0 = beam.phase_centre
     j = beam.jones([T0, T0 + 3600.0], [FREQ0, FREQ0 + DF], [ra0, ra0 + 0.1], [dec0, dec0],
                    centre_correction=True)
@@ -219,7 +218,7 @@ def test_centre_correction_is_the_identity_at_the_phase_centre(mwa_ms):
 def test_fee_without_a_file_is_refused_in_one_line(mwa_ms, monkeypatch):
     monkeypatch.delenv("MWA_BEAM_FILE", raising=False)
     with pytest.raises(InputError) as err:
-        MwaBeam.from_ms(mwa_ms, element_model="fee")
+        mwa_from_ms(mwa_ms, element_model="fee")
     text = str(err.value)
     assert "\n" not in text
     for word in ("`--beam-file PATH`", "MWA_BEAM_FILE", "download",
@@ -229,31 +228,31 @@ def test_fee_without_a_file_is_refused_in_one_line(mwa_ms, monkeypatch):
 
 def test_fee_file_from_the_environment(mwa_ms, fee_file, monkeypatch):
     monkeypatch.setenv("MWA_BEAM_FILE", str(fee_file))
-    beam = MwaBeam.from_ms(mwa_ms, element_model="fee")
+    beam = mwa_from_ms(mwa_ms, element_model="fee")
     assert beam.band == (FEE_FREQS[0], FEE_FREQS[1])
     monkeypatch.setenv("MWA_BEAM_FILE", str(mwa_ms / "table.dat"))
     with pytest.raises(InputError, match="not a readable MWA FEE beam file"):
-        MwaBeam.from_ms(mwa_ms, element_model="fee")
+        mwa_from_ms(mwa_ms, element_model="fee")
 
 
 def test_unknown_element_model_and_stray_file_are_refused(mwa_ms, fee_file):
     with pytest.raises(InputError, match="unknown MWA element model 'hamaker'; use one of "
                                          "analytic, fee"):
-        MwaBeam.from_ms(mwa_ms, element_model="hamaker")
+        mwa_from_ms(mwa_ms, element_model="hamaker")
     with pytest.raises(InputError, match="reads no file"):
-        MwaBeam.from_ms(mwa_ms, beam_file=fee_file)
+        mwa_from_ms(mwa_ms, beam_file=fee_file)
 
 
 def test_channels_outside_the_band_are_refused(tmp_path, mwa_ms, fee_file):
     low = build_ms(tmp_path / "low.ms", freq0_hz=60e6, nchan=2)
     with pytest.raises(InputError, match=r"covers 70-300 MHz .*60 MHz requested"):
-        MwaBeam.from_ms(low)
-    beam = MwaBeam.from_ms(mwa_ms)
+        mwa_from_ms(low)
+    beam = mwa_from_ms(mwa_ms)
     with pytest.raises(InputError, match="320 MHz requested"):
         beam.jones([T0], [150e6, 320e6], [0.0], [0.0])
     high = build_ms(tmp_path / "high.ms", freq0_hz=152e6, nchan=2)
     with pytest.raises(InputError, match=r"covers 149.76-151.04 MHz \(the file's band\)"):
-        MwaBeam.from_ms(high, element_model="fee", beam_file=fee_file)
+        mwa_from_ms(high, element_model="fee", beam_file=fee_file)
 
 
 def test_missing_hyperbeam_names_the_extra(mwa_ms, monkeypatch):
@@ -261,7 +260,7 @@ def test_missing_hyperbeam_names_the_extra(mwa_ms, monkeypatch):
 
     monkeypatch.setattr(mwa, "mwa_hyperbeam", None)
     with pytest.raises(BeamUnavailable, match=r"pip install 'msleak\[mwa\]'"):
-        MwaBeam.from_ms(mwa_ms)
+        mwa_from_ms(mwa_ms)
 
 
 def test_cli_refusals_are_one_line(mwa_ms, tmp_path, monkeypatch):
@@ -318,7 +317,7 @@ def test_delays_steer_the_beam_to_their_direction(tmp_path):
     ms = build_ms(tmp_path / "n.ms", nchan=1, ntime=1)
     delays = _mc_delays(0.0, np.radians(20))
     write_mwa_tile_pointing(ms, (T0, T0), delays)
-    beam = MwaBeam.from_ms(ms)
+    beam = mwa_from_ms(ms)
     centre = read_antennas(ms).positions[:5].mean(axis=0)
     # a grid of directions around the zenith, 1 deg steps to za 40 deg
     za_g, az_g = np.meshgrid(np.radians(np.arange(0.5, 40, 1.0)),
@@ -335,7 +334,7 @@ def test_delays_steer_the_beam_to_their_direction(tmp_path):
     az, el = _azel([ra[np.argmax(power)]], [dec[np.argmax(power)]], T0, centre)
     peak = _enu(az, el)[0]
     assert np.degrees(np.arccos(peak @ _enu(np.array(0.0), np.radians(70.0)))) < 1.0
-    zenith = MwaBeam.from_ms(build_ms(tmp_path / "z.ms", nchan=1, ntime=1))
+    zenith = mwa_from_ms(build_ms(tmp_path / "z.ms", nchan=1, ntime=1))
     assert np.abs(zenith.jones([T0], [FREQ0], ra, dec, stations=[0])[0, 0, 0] - j).max() > 0.1
 
 
@@ -353,7 +352,7 @@ def _radec_of_azel(az, el, t, position):
 
 # -- 6. the horizon ------------------------------------------------------------------------
 def test_zero_not_nan_below_the_horizon(mwa_ms):
-    beam = MwaBeam.from_ms(mwa_ms)
+    beam = mwa_from_ms(mwa_ms)
     ra0, dec0 = beam.phase_centre
     ra = np.array([ra0, ra0 + np.pi, ra0 + np.pi / 2 + 0.3, 0.0])
     dec = np.array([dec0, -dec0, 0.0, np.pi / 2])        # the NCP is below the MWA horizon
@@ -374,7 +373,7 @@ def test_array_centre_frame_against_each_tiles_own_frame(tmp_path):
     of the centre frame against hyperbeam in each tile's own frame over a 15 deg field."""
     enu = np.array([[-1500.0, 0.0, 0.0], [1500.0, 0.0, 0.0], [0.0, 1500.0, 0.0]])
     ms = build_ms(tmp_path / "wide.ms", nchan=1, ntime=1, enu=enu)
-    beam = MwaBeam.from_ms(ms)
+    beam = mwa_from_ms(ms)
     ra, dec = _field_directions(*beam.phase_centre)
     ra, dec = ra[:25], dec[:25]
     j = beam.jones([T0], [FREQ0], ra, dec)[:, 0, 0]

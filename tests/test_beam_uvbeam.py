@@ -13,12 +13,11 @@ from pyuvdata.telescopes import KNOWN_TELESCOPES
 
 from casa_ms import build_ms
 from ms_helpers import phase_centre, write_sky, one_error_line
-from msleak.beam import load_beam
-from msleak.beam.base import BeamUnavailable
-from msleak.beam.coords import exact_j2000_to_itrf
+from msleak.adapters.beams import load_beam, uvbeam_from_ms
 from msleak.beam.uvbeam import UVBeamModel, frequency_weights
 from msleak.cli import cli
-from msleak.errors import InputError
+from msleak.errors import BeamUnavailable, InputError
+from msleak.io.measures import exact_j2000_to_itrf
 from msleak.io.ms import column_names, read_antennas
 from msleak.io.uvbeam import default_beam_file, read_beam_file
 
@@ -51,7 +50,7 @@ def hera_ms(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def model(hera_ms):
-    return UVBeamModel.from_ms(hera_ms)
+    return uvbeam_from_ms(hera_ms)
 
 
 def _local_vectors(ra, dec, t_mjd_s, position):
@@ -224,7 +223,7 @@ def test_short_dipole_file_gives_the_projected_dipoles(tmp_path, hera_ms):
                                       axis1_array=az, axis2_array=za)
     path = tmp_path / "dipole.beamfits"
     uvb.write_beamfits(str(path))
-    beam = UVBeamModel.from_ms(hera_ms, beam_file=path)
+    beam = uvbeam_from_ms(hera_ms, beam_file=path)
     ra0, dec0 = phase_centre(hera_ms)
     ra, dec = _field(ra0, dec0, n=5, half_deg=55.0)
     got = beam.jones([T0 + 3600.0], [120e6], ra, dec, stations=[1])[0, 0, 0]
@@ -307,12 +306,12 @@ def test_power_and_unreadable_files_refused(tmp_path, hera_ms):
     power = tmp_path / "power.beamfits"
     beam.write_beamfits(str(power))
     with pytest.raises(InputError, match="a power beam, not an E-field beam") as err:
-        UVBeamModel.from_ms(hera_ms, beam_file=power)
+        uvbeam_from_ms(hera_ms, beam_file=power)
     assert "--beam-file" in str(err.value) and "\n" not in str(err.value)
     junk = tmp_path / "junk.beamfits"
     junk.write_bytes(b"\x00not a beam\x01" * 50)
     with pytest.raises(InputError, match="UVBeam cannot read it") as err:
-        UVBeamModel.from_ms(hera_ms, beam_file=junk)
+        uvbeam_from_ms(hera_ms, beam_file=junk)
     assert "\n" not in str(err.value)
     line = one_error_line(CliRunner().invoke(
         cli, ["beam", str(hera_ms), "-o", str(tmp_path / "b.png"), "--beam", "uvbeam",

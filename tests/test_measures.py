@@ -12,9 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from msleak.beam.coords import exact_j2000_to_itrf, radec_to_unit
-from msleak.beam.maps import hour_angle_h
-from msleak.io.measures import set_epoch
+from msleak.beam.coords import radec_to_unit
+from msleak.io.measures import exact_j2000_to_itrf, hour_angle_h, set_epoch
 from msleak.telescope.uvw import antenna_uvw
 
 DAY = 86400.0

@@ -147,7 +147,7 @@ def test_history_row_per_run_and_none_when_refused(ms, sky):
     (dict(memory_limit="lots"), "'lots' is not a memory size"),
     (dict(memory_limit=0), "memory_limit must be positive"),
     (dict(not_a_sky=True), "sky must be a path, a sky Dataset"),
-    (dict(diameter=4.0), "--diameter applies to --beam dipole only, not --beam none"),
+    (dict(diameter=4.0), "diameter applies to beam 'dipole' only, not beam 'none'"),
 ])
 def test_verb_errors(ms, sky, tmp_path, kwargs, message):
     before = _digests(ms)

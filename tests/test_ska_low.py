@@ -8,13 +8,13 @@ import pytest
 
 from casa_ms import build_ms
 from msleak._everybeam import everybeam_datadir, import_everybeam
-from msleak.beam.base import BeamUnavailable
-from msleak.beam.coords import exact_j2000_to_itrf
+from msleak.adapters.beams import ska_low_from_ms
 from msleak.beam.maps import sin_grid
-from msleak.beam.ska_low import (ELEMENT_MODELS, SKALA40_FREQUENCIES_HZ, SkaLowBeam,
+from msleak.beam.ska_low import (ELEMENT_MODELS, SKALA40_FREQUENCIES_HZ,
                                  check_element_model, element_frequency_sets, element_jones)
 from msleak.constants import SPEED_OF_LIGHT
-from msleak.errors import InputError
+from msleak.errors import BeamUnavailable, InputError
+from msleak.io.measures import exact_j2000_to_itrf
 from msleak.io.ms import read_antennas, read_times
 from msleak.io.phased_array import read_phased_array, write_phased_array
 from msleak.telescope.ska_low import (SKA_LOW_CENTRE, ska_low_centre_itrf,
@@ -134,7 +134,7 @@ def test_read_phased_array_needs_the_table(tmp_path):
     with pytest.raises(InputError, match="no PHASED_ARRAY subtable"):
         read_phased_array(ms)
     with pytest.raises(BeamUnavailable, match="no PHASED_ARRAY"):
-        SkaLowBeam.from_ms(ms)
+        ska_low_from_ms(ms)
     with pytest.raises(InputError, match="one row per ANTENNA row"):
         write_phased_array(ms, np.zeros((2, 3)) + 6.4e6, np.eye(3), station_elements())
 
@@ -160,7 +160,7 @@ def _everybeam_direct(ms, model, times, stations, freq, ra, dec, delay):
     ("skala40_wave", np.array([123.9e6, 124.0e6, 124.1e6, 300e6])),
 ])
 def test_fast_beam_matches_everybeam(ska_ms, model, freq):
-    beam = SkaLowBeam.from_ms(ska_ms, element_model=model)
+    beam = ska_low_from_ms(ska_ms, element_model=model)
     ra0, dec0 = beam.phase_centre
     _, _, ra, dec = sin_grid(ra0, dec0, 40.0, 5)
     ra, dec = ra.ravel(), dec.ravel()
@@ -184,7 +184,7 @@ def test_fast_beam_matches_everybeam(ska_ms, model, freq):
 
 def test_everybeams_own_coordinates_agree(ska_ms):
     """Against EveryBeam's (ra, dec) call, which converts directions itself (complex64)."""
-    beam = SkaLowBeam.from_ms(ska_ms)
+    beam = ska_low_from_ms(ska_ms)
     tel = import_everybeam().load_telescope(str(ska_ms))  # EveryBeam's default model
     ra0, dec0 = beam.phase_centre
     ra, dec = ra0 + np.array([0.0, 0.1, -0.2]), dec0 + np.array([0.05, -0.1, 0.2])
@@ -197,7 +197,7 @@ def test_everybeams_own_coordinates_agree(ska_ms):
 
 @pytest.mark.parametrize("model", ["oskar_dipole_cos", "skala40_wave"])
 def test_centre_correction_gives_identity_at_phase_centre(ska_ms, model):
-    beam = SkaLowBeam.from_ms(ska_ms, element_model=model)
+    beam = ska_low_from_ms(ska_ms, element_model=model)
     ra0, dec0 = beam.phase_centre
     times = read_times(ska_ms)
     freq = FREQ0 + DF * np.arange(NCHAN)
@@ -208,7 +208,7 @@ def test_centre_correction_gives_identity_at_phase_centre(ska_ms, model):
 
 
 def test_single_precision_output(ska_ms):
-    beam = SkaLowBeam.from_ms(ska_ms)
+    beam = ska_low_from_ms(ska_ms)
     ra0, dec0 = beam.phase_centre
     args = (read_times(ska_ms), FREQ0 + DF * np.arange(NCHAN), [ra0, ra0 + 0.2], [dec0, dec0])
     j64 = beam.jones(*args, dtype=np.complex64)
@@ -218,7 +218,7 @@ def test_single_precision_output(ska_ms):
 
 
 def test_below_the_horizon_is_zero(ska_ms):
-    beam = SkaLowBeam.from_ms(ska_ms)
+    beam = ska_low_from_ms(ska_ms)
     ra0, dec0 = beam.phase_centre
     j = beam.jones(read_times(ska_ms)[:1], [FREQ0], [ra0 + np.pi], [-dec0])
     assert np.all(j == 0)
@@ -277,7 +277,7 @@ def _one_line(err):
 def test_skalow_feko_is_refused(ska_ms):
     for name in ("skalow_feko", "ska_low_feko"):
         with pytest.raises(InputError, match="broken") as err:
-            SkaLowBeam.from_ms(ska_ms, element_model=name)
+            ska_low_from_ms(ska_ms, element_model=name)
         _one_line(err)
     with pytest.raises(InputError, match="unknown SKA-Low element model") as err:
         check_element_model("hamaker")
@@ -285,7 +285,7 @@ def test_skalow_feko_is_refused(ska_ms):
 
 
 def test_out_of_band_frequencies_are_refused(ska_ms, tmp_path):
-    beam = SkaLowBeam.from_ms(ska_ms, element_model="skala40_wave")
+    beam = ska_low_from_ms(ska_ms, element_model="skala40_wave")
     ra0, dec0 = beam.phase_centre
     with pytest.raises(InputError, match="covers 50-320 MHz; 330 MHz") as err:
         beam.jones(read_times(ska_ms)[:1], [150e6, 330e6], [ra0], [dec0])
@@ -293,11 +293,11 @@ def test_out_of_band_frequencies_are_refused(ska_ms, tmp_path):
     low = build_ms(tmp_path / "low.ms", telescope="SKA-LOW", freq0_hz=40e6)
     _write_layout(low)
     with pytest.raises(InputError, match="covers 50-350 MHz; 40 MHz") as err:
-        SkaLowBeam.from_ms(low)
+        ska_low_from_ms(low)
     _one_line(err)
 
 
 def test_non_ska_low_ms_is_refused(tmp_path):
     ms = build_ms(tmp_path / "mwa.ms", telescope="MWA")
     with pytest.raises(BeamUnavailable, match="not 'SKA-LOW'"):
-        SkaLowBeam.from_ms(ms)
+        ska_low_from_ms(ms)

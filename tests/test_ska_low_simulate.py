@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from casacore.tables import table
 
-from msleak.beam import load_beam
+from msleak.adapters.beams import load_beam
 from msleak.beam.ska_low import SkaLowBeam
 from msleak.errors import InputError
 from msleak.io.ms import read_fields, read_history, read_times

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation
 
-from msleak.beam import beam_options
+from msleak.adapters.beams import beam_options
 from msleak.beam.dipole import DipoleBeam
 from msleak.beam.mueller import jones_to_mueller
 from msleak.errors import InputError
@@ -118,11 +118,11 @@ def test_dp3_reads_every_telescope(tmp_path, telescope, stations):
 
 
 @pytest.mark.parametrize("model,kwargs,message", [
-    ("everybeam", dict(diameter=30.0), "--diameter applies to --beam dipole only"),
-    ("dipole", dict(diameter=-1.0), "--diameter takes a positive station diameter"),
-    ("dipole", dict(beam_file="x.beamfits"), "--beam-file applies to --beam uvbeam or hyperbeam"),
-    ("uvbeam", dict(element_model="fee"), "--element-model applies to --beam everybeam"),
-    ("none", dict(element_model="fee"), "not --beam none"),
+    ("everybeam", dict(diameter=30.0), "diameter applies to beam 'dipole' only"),
+    ("dipole", dict(diameter=-1.0), "diameter takes a positive value"),
+    ("dipole", dict(beam_file="x.beamfits"), "beam_file applies to beam 'uvbeam' or 'hyperbeam'"),
+    ("uvbeam", dict(element_model="fee"), "element_model applies to beam 'everybeam'"),
+    ("none", dict(element_model="fee"), "not beam 'none'"),
 ])
 def test_beam_options_refused(model, kwargs, message):
     with pytest.raises(InputError, match=message):

@@ -26,24 +26,12 @@ from msleak.beam.lofar_kernels import apply_left_inverse
 from msleak.errors import InputError
 
 __all__ = ["BeamName", "BeamModel", "IdentityBeam", "JonesFactors", "invert_2x2",
-           "BEAM_NAMES", "BeamUnavailable"]
+           "BEAM_NAMES"]
 
 log = logging.getLogger(__name__)
 
 BeamName = Literal["everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole", "none"]
 BEAM_NAMES = ("everybeam", "everybeam-direct", "uvbeam", "hyperbeam", "dipole", "none")
-
-
-class BeamUnavailable(InputError):
-    """A beam model cannot describe an MS: ``reason`` says why, ``setting`` is an optional
-    fix of the environment (e.g. an environment variable), ``remedy`` the command-line way
-    on; the message is ``reason; [setting, or ]remedy``.  Commands whose options differ
-    (``msleak grid``) re-raise it with their own remedy."""
-
-    def __init__(self, reason: str, remedy: str = "use `--beam dipole` (analytic beam)",
-                 setting: str = ""):
-        self.reason, self.remedy, self.setting = reason, remedy, setting
-        super().__init__(f"{reason}; {setting + ', or ' if setting else ''}{remedy}")
 
 
 def invert_2x2(j: np.ndarray, *, rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:

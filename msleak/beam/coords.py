@@ -1,33 +1,35 @@
 """Sky directions for beam evaluation: J2000 -> ITRF, the sky (North, East) basis, the NCP.
 
 :func:`itrf_map` converts many J2000 unit vectors of one time to ITRF through a map
-fitted to a few exact casacore conversions (:func:`exact_j2000_to_itrf`);
+fitted to a few exact casacore conversions
+(:func:`msleak.io.measures.exact_j2000_to_itrf`);
 :func:`sky_basis` gives EveryBeam's basis ``east = normalize(ncp x d)``,
 ``north = d x east``; :func:`clip_pole` moves directions within :data:`POLE_EPS_RAD` of
 a celestial pole onto their own meridian so the basis stays finite;
 :func:`transport_angle` and :func:`basis_rotation` refer Q and U to one frame per map.
 Angles in radians, vectors as (..., 3) arrays. Details: docs/beam.md ("Conventions",
 "Directions in ITRF").
+
+The one module of :mod:`msleak.beam` that imports :mod:`msleak.io` (its casacore
+conversions, :mod:`msleak.io.measures`): every beam model converts directions per time
+slot inside its evaluation, and the map it fits needs exact conversions at that time.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 
 import numpy as np
 
-from msleak.io.measures import set_epoch
+from msleak.io.measures import exact_j2000_to_itrf, itrf_to_j2000
 
 __all__ = [
-    "LOFAR_FRAME_POSITION_ITRF",
     "POLE_EPS_RAD",
     "radec_to_unit",
     "unit_to_radec",
     "clip_pole",
     "ItrfMap",
     "itrf_map",
-    "exact_j2000_to_itrf",
     "sky_basis",
     "enu_basis",
     "zenith_j2000",
@@ -36,9 +38,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-#: ITRF position (m) of the frame EveryBeam uses for every J2000 -> ITRF conversion (CS002LBA).
-LOFAR_FRAME_POSITION_ITRF = np.array([826577.022720000, 461022.995082000, 5064892.814])
 
 #: Directions closer than this (rad, about 2 mas) to a celestial pole are moved onto their
 #: meridian at this distance, so that the (North, East) basis is defined.
@@ -74,60 +73,6 @@ def lm_to_radec(l, m, ra0: float, dec0: float) -> tuple[np.ndarray, np.ndarray]:
 def clip_pole(dec, eps: float = POLE_EPS_RAD) -> np.ndarray:
     """Declinations (rad) with the poles replaced by +-(pi/2 - eps) (see module notes)."""
     return np.clip(np.asarray(dec, dtype=float), -np.pi / 2 + eps, np.pi / 2 - eps)
-
-
-class _Casacore:
-    """One python-casacore measures server with the EveryBeam frame, per time."""
-
-    def __init__(self, position_itrf=LOFAR_FRAME_POSITION_ITRF):
-        from casacore.measures import measures
-        from casacore.quanta import quantity
-
-        self._q = quantity
-        self.dm = measures()
-        x, y, z = (float(c) for c in position_itrf)
-        self.dm.do_frame(self.dm.position("ITRF", f"{x!r}m", f"{y!r}m", f"{z!r}m"))
-        #: casacore's measures server is not thread-safe: hold this around set_time+convert
-        self.lock = threading.Lock()
-
-    def set_time(self, time_mjd_s: float) -> None:
-        set_epoch(self.dm, time_mjd_s)
-
-    def convert(self, ra, dec) -> np.ndarray:
-        ra = np.atleast_1d(np.asarray(ra, dtype=float))
-        dec = np.atleast_1d(np.asarray(dec, dtype=float))
-        out = np.empty((ra.size, 3))
-        dm, q = self.dm, self._q
-        for i, (a, d) in enumerate(zip(ra, dec)):
-            m = dm.measure(dm.direction("J2000", q(float(a), "rad"), q(float(d), "rad")), "ITRF")
-            lon, lat = m["m0"]["value"], m["m1"]["value"]
-            out[i] = (np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat))
-        return out
-
-
-_SERVERS: dict[tuple, _Casacore] = {}
-_SERVERS_LOCK = threading.Lock()
-
-
-def _server(position_itrf=None) -> _Casacore:
-    pos = LOFAR_FRAME_POSITION_ITRF if position_itrf is None else np.asarray(position_itrf)
-    key = tuple(np.round(pos, 3))
-    with _SERVERS_LOCK:
-        if key not in _SERVERS:
-            _SERVERS[key] = _Casacore(pos)
-        return _SERVERS[key]
-
-
-def exact_j2000_to_itrf(time_mjd_s: float, ra, dec, position_itrf=None) -> np.ndarray:
-    """ITRF unit vectors (n, 3) of J2000 directions, one casacore conversion each.
-
-    Slow (about 200 us per direction); the reference for :class:`ItrfMap`.  The frame is
-    at ``position_itrf`` (m), EveryBeam's :data:`LOFAR_FRAME_POSITION_ITRF` by default.
-    """
-    srv = _server(position_itrf)
-    with srv.lock:
-        srv.set_time(time_mjd_s)
-        return srv.convert(ra, dec)
 
 
 #: The J2000 pole as a unit vector.
@@ -220,12 +165,12 @@ def itrf_map(time_mjd_s: float, unit_j2000: np.ndarray, *, min_radius_rad: float
     min_radius_rad : float
         Smallest radius of the fitted region.
     position_itrf : (3,) array, optional
-        Frame position (m); EveryBeam's :data:`LOFAR_FRAME_POSITION_ITRF` by default.
+        Frame position (m); EveryBeam's
+        :data:`msleak.io.measures.LOFAR_FRAME_POSITION_ITRF` by default.
     """
     u = np.asarray(unit_j2000, dtype=float).reshape(-1, 3)
     mean = u.mean(axis=0)
     norm = np.linalg.norm(mean)
-    srv = _server(position_itrf)
     if norm < 0.5:
         # very wide set of directions: anchors over the whole sphere
         k = np.arange(48) + 0.5
@@ -247,9 +192,7 @@ def itrf_map(time_mjd_s: float, unit_j2000: np.ndarray, *, min_radius_rad: float
         anchors /= np.linalg.norm(anchors, axis=1, keepdims=True)
         radius = float(np.arccos(np.clip(anchors @ centre, -1, 1)).max())
     ra, dec = unit_to_radec(anchors)
-    with srv.lock:
-        srv.set_time(time_mjd_s)
-        images = srv.convert(ra, dec)
+    images = exact_j2000_to_itrf(time_mjd_s, ra, dec, position_itrf)
     matrix, offset = _solve_map(anchors, images)
     fitted = anchors @ matrix.T + offset
     fitted /= np.linalg.norm(fitted, axis=1, keepdims=True)
@@ -294,15 +237,7 @@ def zenith_j2000(time_mjd_s, position_itrf) -> tuple[np.ndarray, np.ndarray]:
     UTC ``time_mjd_s`` (MJD s), one exact casacore conversion each (a few ms)."""
     up = enu_basis(position_itrf)[2]
     lon, lat = float(np.arctan2(up[1], up[0])), float(np.arcsin(up[2]))
-    times = np.atleast_1d(np.asarray(time_mjd_s, dtype=float))
-    ra, dec = np.empty(times.size), np.empty(times.size)
-    srv = _server(position_itrf)
-    with srv.lock:
-        zenith = srv.dm.direction("ITRF", srv._q(lon, "rad"), srv._q(lat, "rad"))
-        for i, t in enumerate(times):
-            srv.set_time(float(t))
-            m = srv.dm.measure(zenith, "J2000")
-            ra[i], dec[i] = m["m0"]["value"], m["m1"]["value"]
+    ra, dec = itrf_to_j2000(time_mjd_s, lon, lat, position_itrf)
     return np.mod(ra, 2 * np.pi), dec
 
 

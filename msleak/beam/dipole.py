@@ -1,6 +1,6 @@
 """An analytic beam for any Measurement Set: crossed dipoles times a scalar station factor.
 
-:class:`DipoleBeam` (``load_beam("dipole", ms, ...)``) gives, per station, the projection
+:class:`DipoleBeam` (``load_beam("dipole", ms, ...)`` in :mod:`msleak.adapters.beams`) gives, per station, the projection
 of ideal X and Y dipoles (X along local North for feed angle 0) on the sky (North, East)
 basis (:func:`dipole_jones`), optionally times a ground-plane factor, times a scalar
 station factor (:func:`station_factor`: ``airy``, ``gaussian`` or ``none``, from the
@@ -16,7 +16,7 @@ from typing import Literal
 
 import numpy as np
 
-from msleak.beam.base import BeamModel, BeamUnavailable
+from msleak.beam.base import BeamModel
 from msleak.beam.coords import (
     clip_pole,
     enu_basis,
@@ -25,8 +25,7 @@ from msleak.beam.coords import (
     sky_basis,
 )
 from msleak.constants import SPEED_OF_LIGHT
-from msleak.errors import InputError
-from msleak.io.ms import read_antennas, read_beam_directions
+from msleak.errors import BeamUnavailable, InputError
 
 __all__ = ["DipoleBeam", "dipole_jones", "station_factor", "StationFactor"]
 
@@ -153,16 +152,6 @@ class DipoleBeam(BeamModel):
         self._enu = np.zeros((len(positions), 3, 3))
         self._enu[used] = [enu_basis(positions[i]) for i in used]
         self._centre = positions[used].mean(axis=0)
-
-    @classmethod
-    def from_ms(cls, ms, *, field_id: int = 0, used_stations=None, **options) -> "DipoleBeam":
-        """The dipole beam of the stations ``used_stations`` (ANTENNA rows, default all) of
-        ``ms``; phase centre and pointing (:func:`msleak.io.ms.read_beam_directions`:
-        DELAY_DIR, else PHASE_DIR) of FIELD ``field_id``."""
-        antennas = read_antennas(ms)
-        directions = read_beam_directions(ms, field_id)
-        return cls(antennas.positions, antennas.diameter, directions.delay, directions.phase,
-                   antennas.names, used_stations=used_stations, **options)
 
     def _jones(self, time, freq, ra, dec, stations, dtype):
         out = np.zeros((stations.size, time.size, freq.size, ra.size, 2, 2), dtype)

@@ -1,21 +1,19 @@
 """The LOFAR station description the fast beam uses, assembled from the MS's LOFAR tables.
 
-The tables are read by :mod:`msleak.io.lofar` and :func:`msleak.io.ms.read_beam_directions`;
-:func:`lofar_array` checks and groups those arrays per station (docs/beam.md).
+The tables are read by :mod:`msleak.io.lofar` and :func:`msleak.io.ms.read_beam_directions`
+(:func:`msleak.adapters.beams.read_lofar_array`); :func:`lofar_array` checks and groups
+those arrays per station (docs/beam.md).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from msleak.beam.base import BeamUnavailable
-from msleak.io.lofar import read_lofar_antenna_fields, read_lofar_phase_references
-from msleak.io.ms import check_ms, has_lofar_tables, read_antennas, read_beam_directions
+from msleak.errors import BeamUnavailable
 
-__all__ = ["LofarField", "LofarStation", "LofarArray", "lofar_array", "read_lofar_array"]
+__all__ = ["LofarField", "LofarStation", "LofarArray", "lofar_array"]
 
 
 @dataclass(frozen=True)
@@ -103,23 +101,3 @@ def lofar_array(names, field_rows, phase_references, directions) -> LofarArray:
                                   fields=tuple(fields[i])) for i, n in enumerate(names))
     return LofarArray(stations=stations, delay_dir=directions.delay,
                       tile_beam_dir=directions.tile, phase_centre=directions.phase)
-
-
-def read_lofar_array(ms: str | os.PathLike, field_id: int = 0) -> LofarArray:
-    """The LOFAR station layout of ``ms`` with the pointing of FIELD ``field_id``.
-
-    Raises
-    ------
-    BeamUnavailable
-        The MS lacks a LOFAR table or column the LOFAR beam needs.
-    """
-    ms = check_ms(ms)
-    if not has_lofar_tables(ms):
-        raise BeamUnavailable(f"{ms}: no LOFAR_ANTENNA_FIELD table (with "
-                              "ANTENNA::LOFAR_PHASE_REFERENCE and FIELD::LOFAR_TILE_BEAM_DIR), "
-                              "so no LOFAR beam")
-    try:
-        return lofar_array(read_antennas(ms).names, read_lofar_antenna_fields(ms),
-                           read_lofar_phase_references(ms), read_beam_directions(ms, field_id))
-    except BeamUnavailable as err:
-        raise BeamUnavailable(f"{ms}: {err.reason}") from None

@@ -1,4 +1,4 @@
-"""The MWA tile beam through mwa_hyperbeam (``--beam hyperbeam``).
+"""The MWA tile beam through mwa_hyperbeam (beam ``hyperbeam``).
 
 Every MWA tile is 4 x 4 bowtie dipoles fixed on the ground, steered by 16 delays
 (MWA_TILE_POINTING, :mod:`msleak.io.mwa`). hyperbeam evaluates the tile response at an
@@ -21,13 +21,11 @@ import os
 
 import numpy as np
 
-from msleak._everybeam import MWA_BEAM_FILE_NAME, MWA_BEAM_FILE_VARIABLE
-from msleak.beam.base import BeamModel, BeamUnavailable
+from msleak._everybeam import MWA_BEAM_FILE_NAME, MWA_BEAM_FILE_VARIABLE, check_delays
+from msleak.beam.base import BeamModel
 from msleak.beam.coords import (clip_pole, enu_basis, itrf_map,
                                 radec_to_unit, sky_basis)
-from msleak.errors import InputError
-from msleak.io.ms import check_ms, read_antennas, read_beam_directions, read_spectral_windows
-from msleak.io.mwa import check_delays, read_mwa_delays
+from msleak.errors import BeamUnavailable, InputError
 
 try:
     import mwa_hyperbeam
@@ -35,9 +33,9 @@ except ImportError:
     mwa_hyperbeam = None
 
 __all__ = ["MwaBeam", "ELEMENT_MODELS", "ANALYTIC_BAND_HZ", "hyperbeam_to_sky",
-           "theta_phi_to_sky", "local_az_za", "analytic_order"]
+           "theta_phi_to_sky", "local_az_za", "analytic_order", "require_hyperbeam"]
 
-#: The element models of ``--element-model`` (the first is the default).
+#: The element models (``element_model``; the first is the default).
 ELEMENT_MODELS = ("analytic", "fee")
 #: Band (Hz) msleak accepts for the analytic model: the MWA receiver's 70-300 MHz.
 ANALYTIC_BAND_HZ = (70e6, 300e6)
@@ -45,7 +43,8 @@ _FEE_REMEDY = (f"download {MWA_BEAM_FILE_NAME} (about 200 MB, from the MWA beam 
                f"pass it with `--beam-file PATH` or set {MWA_BEAM_FILE_VARIABLE} to it")
 
 
-def _require_hyperbeam():
+def require_hyperbeam():
+    """The mwa_hyperbeam module (BeamUnavailable, naming the extra, without it)."""
     if mwa_hyperbeam is None:
         raise BeamUnavailable("the hyperbeam beam needs the mwa_hyperbeam package, which is "
                               "not installed", remedy="pip install 'msleak[mwa]'")
@@ -54,14 +53,14 @@ def _require_hyperbeam():
 
 def _make_beam(element_model: str, beam_file):
     """(hyperbeam beam object, band (lo, hi) Hz, FEE file frequencies or None)."""
-    hb = _require_hyperbeam()
+    hb = require_hyperbeam()
     if str(element_model).lower() not in ELEMENT_MODELS:
         raise InputError(f"unknown MWA element model {element_model!r}; use one of "
                          f"{', '.join(ELEMENT_MODELS)}")
     if str(element_model).lower() == "analytic":
         if beam_file is not None:
-            raise InputError("the analytic MWA beam reads no file; drop `--beam-file` or "
-                             "use `--element-model fee`")
+            raise InputError("the analytic MWA beam reads no file; drop beam_file, or use "
+                             "element_model 'fee'", param=("beam_file", "element_model"))
         return hb.AnalyticBeam(), ANALYTIC_BAND_HZ, None
     path = beam_file if beam_file is not None else os.environ.get(MWA_BEAM_FILE_VARIABLE)
     if not path:
@@ -156,25 +155,6 @@ class MwaBeam(BeamModel):
         self._enu = enu_basis(self._centre)
         self._latitude = float(np.arcsin(self._enu[2, 2]))
 
-    @classmethod
-    def from_ms(cls, ms, *, field_id: int = 0, used_stations=None, element_model=None,
-                beam_file=None) -> "MwaBeam":
-        """The hyperbeam beam of ``ms``: delays from MWA_TILE_POINTING (zenith without it),
-        phase centre of FIELD ``field_id``; every channel must lie in the model's band."""
-        _require_hyperbeam()
-        ms = check_ms(ms)
-        antennas = read_antennas(ms)
-        model = cls(antennas.positions, read_beam_directions(ms, field_id).phase,
-                    antennas.names, used_stations=used_stations,
-                    element_model=ELEMENT_MODELS[0] if element_model is None else element_model,
-                    beam_file=beam_file, delays=read_mwa_delays(ms))
-        for w in read_spectral_windows(ms):
-            try:
-                model.check_band(w.freq)
-            except InputError as err:
-                raise InputError(f"{ms}: {err}") from None
-        return model
-
     def check_band(self, freq_hz) -> None:
         """Raise InputError if a frequency (Hz) lies outside :attr:`band`."""
         freq = np.atleast_1d(np.asarray(freq_hz, dtype=float))
@@ -184,7 +164,7 @@ class MwaBeam(BeamModel):
             what = ("the file's" if self._fee_freqs is not None else "the MWA receiver's")
             raise InputError(f"the {self.element_model} MWA beam covers {lo / 1e6:g}-"
                              f"{hi / 1e6:g} MHz ({what} band); {bad[0] / 1e6:g} MHz requested "
-                             f"({bad.size} channel(s) outside); use `--beam dipole` there")
+                             f"({bad.size} channel(s) outside); use beam='dipole' there")
 
     def _evaluation_freqs(self, freq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distinct frequencies hyperbeam is called at and, per channel, its index."""

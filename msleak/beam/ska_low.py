@@ -22,24 +22,15 @@ result is zero (EveryBeam's element patterns are not).
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from msleak._everybeam import import_everybeam
-from msleak.beam.base import BeamModel, BeamUnavailable
+from msleak.beam.base import BeamModel
 from msleak.beam.coords import clip_pole, itrf_map, radec_to_unit, sky_basis
 from msleak.beam.ska_low_kernels import ska_low_station_kernel
 from msleak.errors import InputError
-from msleak.io.ms import (
-    check_ms,
-    read_antennas,
-    read_beam_directions,
-    read_spectral_windows,
-    read_telescope_name,
-)
-from msleak.io.phased_array import has_phased_array, read_phased_array
 
 __all__ = ["ElementModel", "ELEMENT_MODELS", "REFUSED_MODELS", "SKALA40_FREQUENCIES_HZ",
            "SkaLowBeam", "check_element_model", "check_band", "element_frequency_sets",
@@ -259,42 +250,6 @@ class SkaLowBeam(BeamModel):
             self._station_group[i] = groups[key]
         log.info("SKA-Low beam (%s): %d stations, %d element-response groups",
                  self.model.name, n, len(self._group_axes))
-
-    @classmethod
-    def from_ms(cls, ms: str | os.PathLike, element_model: str = "default",
-                field_id: int = 0, used_stations=None, spw: int | None = None):
-        """The beam of an SKA-Low MS (TELESCOPE_NAME ``SKA-LOW`` with PHASED_ARRAY).
-
-        The channels of SPECTRAL_WINDOW ``spw`` (all when None) must lie in the element
-        model's band.
-
-        Raises
-        ------
-        BeamUnavailable
-            Not an SKA-Low MS, or no PHASED_ARRAY subtable.
-        InputError
-            A refused or unknown element model, or channels outside its band.
-        """
-        ms = check_ms(ms)
-        telescope = read_telescope_name(ms)
-        if telescope.upper() != "SKA-LOW":
-            raise BeamUnavailable(f"{ms}: TELESCOPE_NAME is {telescope!r}, not 'SKA-LOW', "
-                                  "so no SKA-Low beam")
-        if not has_phased_array(ms):
-            raise BeamUnavailable(f"{ms}: no PHASED_ARRAY subtable (the SKA-Low station "
-                                  "layout), so no SKA-Low beam")
-        model = check_element_model(element_model)
-        windows = read_spectral_windows(ms)
-        if spw is not None and not 0 <= spw < len(windows):
-            raise InputError(f"{ms}: no SPECTRAL_WINDOW {spw} (the MS has {len(windows)})")
-        for w in windows if spw is None else [windows[spw]]:
-            try:
-                check_band(model, w.freq)
-            except InputError as err:
-                raise InputError(f"{ms}: {err}") from None
-        directions = read_beam_directions(ms, field_id)
-        return cls(read_phased_array(ms), directions.phase, directions.delay,
-                   read_antennas(ms).names, model.name, used_stations)
 
     def _directions(self, time: float, ra: np.ndarray, dec: np.ndarray):
         """ITRF directions (ndir, 3), delay direction (3,) and the J2000 pole (3,)."""

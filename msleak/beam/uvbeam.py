@@ -1,4 +1,4 @@
-"""A fixed, zenith-pointing dish (HERA) through a UVBeam E-field beam file: ``--beam uvbeam``.
+"""A fixed, zenith-pointing dish (HERA) through a UVBeam E-field beam file: beam ``uvbeam``.
 
 :class:`UVBeamModel` takes one E-field beam read by :mod:`msleak.io.uvbeam` (default:
 pyuvsim's ``HERA_NicCST.beamfits``) and, per time slot, interpolates it with pyuvdata's
@@ -17,12 +17,10 @@ Conventions, accuracy and speed: docs/hera.md.
 from __future__ import annotations
 
 import logging
-import os
-from pathlib import Path
 
 import numpy as np
 
-from msleak.beam.base import BeamModel, BeamUnavailable
+from msleak.beam.base import BeamModel
 from msleak.beam.coords import (
     clip_pole,
     enu_basis,
@@ -31,8 +29,6 @@ from msleak.beam.coords import (
     sky_basis,
 )
 from msleak.errors import InputError
-from msleak.io.ms import check_ms, read_antennas, read_beam_directions, read_spectral_windows
-from msleak.io.uvbeam import default_beam_file, have_pyuvdata, read_beam_file
 
 __all__ = ["UVBeamModel", "frequency_weights", "check_frequencies", "response_vectors"]
 
@@ -143,7 +139,7 @@ class UVBeamModel(BeamModel):
     Parameters
     ----------
     beam : pyuvdata.UVBeam
-        From :func:`read_beam_file`.
+        From :func:`msleak.io.uvbeam.read_beam_file`.
     positions : (nstation, 3) array
         ITRF station positions, m.
     phase_centre : (float, float)
@@ -179,38 +175,6 @@ class UVBeamModel(BeamModel):
                                              rel[1, 0] - rel[0, 1]])
         self._centre_axes = centre_axes
         self._turns = _rotations(_STEP_RAD)
-
-    @classmethod
-    def from_ms(cls, ms, *, field_id: int = 0, used_stations=None,
-                beam_file: str | os.PathLike | None = None) -> "UVBeamModel":
-        """The beam of ``beam_file`` (default :func:`default_beam_file`) for the stations
-        ``used_stations`` of ``ms``, phase centre of FIELD ``field_id``.
-
-        Raises
-        ------
-        BeamUnavailable
-            pyuvdata (or, for the default file, pyuvsim) is not installed.
-        InputError
-            A file :func:`read_beam_file` refuses, or channels outside its frequencies.
-        """
-        if not have_pyuvdata():
-            raise BeamUnavailable("--beam uvbeam needs the Python package pyuvdata",
-                                  remedy="pip install 'msleak[hera]'")
-        ms = check_ms(ms)
-        path = default_beam_file() if beam_file is None else Path(beam_file)
-        beam = read_beam_file(path)
-        for window in read_spectral_windows(ms):
-            try:
-                check_frequencies(window.freq, beam.freq_array, path.name)
-            except InputError as err:
-                raise InputError(f"{ms}: {err}") from None
-        antennas = read_antennas(ms)
-        directions = read_beam_directions(ms, field_id)
-        log.info("uvbeam: %s, %d feeds (x at %.1f deg from North), %g-%g MHz", path.name,
-                 beam.Nfeeds, np.degrees(beam.feed_angle[list(beam.feed_array).index("x")]),
-                 beam.freq_array.min() / 1e6, beam.freq_array.max() / 1e6)
-        return cls(beam, antennas.positions, directions.phase, antennas.names,
-                   used_stations=used_stations, name=path.name)
 
     def _directions(self, time: float, ra, dec):
         """ITRF directions (ndir, 3) and their sky (North, East) basis of one time."""

@@ -80,7 +80,7 @@ def cosmology_options(func):
 
 def beam_model_options(func):
     """``--element-model`` and ``--beam-file``: the settings of the beam models that take
-    them (:func:`msleak.beam.beam_options` refuses them for the others)."""
+    them (:func:`msleak.adapters.beams.beam_options` refuses them for the others)."""
     func = click.option(
         "--beam-file", "beam_file", type=click.Path(exists=True, dir_okay=False),
         default=None, metavar="FILE",

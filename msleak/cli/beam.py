@@ -6,10 +6,11 @@ from pathlib import Path
 
 import click
 
-from msleak.beam.maps import BASES, MAP_BEAMS, beam_maps
+from msleak.beam.maps import BASES, MAP_BEAMS
 from msleak.cli._common import FloatList, beam_model_options
 from msleak.errors import InputError
 from msleak.plot.beam import plot_beam_maps
+from msleak.verbs.beam_maps import beam_maps
 
 
 @click.command()

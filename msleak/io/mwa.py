@@ -20,28 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak._everybeam import check_delays
 from msleak.errors import InputError
 from msleak.io.ms import _subtable, check_ms, open_table, read_beam_directions
 
-__all__ = ["MWA_TILE_POINTING_TABLE", "write_mwa_tile_pointing", "read_mwa_delays",
-           "check_delays"]
+__all__ = ["MWA_TILE_POINTING_TABLE", "write_mwa_tile_pointing", "read_mwa_delays"]
 
 log = logging.getLogger(__name__)
 
 #: Name of the subtable and of the MS keyword pointing to it.
 MWA_TILE_POINTING_TABLE = "MWA_TILE_POINTING"
 _REWRITE = ("write it again with msleak.io.mwa.write_mwa_tile_pointing, or use "
-            "`--beam dipole`")
-
-
-def check_delays(delays) -> np.ndarray:
-    """``delays`` as a (16,) int64 array, refused unless 16 integers in 0..32."""
-    values = np.asarray(delays)
-    if values.shape != (16,) or values.dtype.kind not in "iu" or np.any(
-            (values < 0) | (values > 32)):
-        raise InputError("MWA dipole delays must be 16 integers from 0 to 32 (32 = dead "
-                         f"dipole), got {np.array2string(values.ravel()[:17], separator=',')}")
-    return values.astype(np.int64)
+            "beam='dipole'")
 
 
 def _table_description(pt):

@@ -1,4 +1,4 @@
-"""Beam files for ``--beam uvbeam``: read with pyuvdata's UVBeam and checked (docs/hera.md).
+"""Beam files for the ``uvbeam`` beam: read with pyuvdata's UVBeam and checked (docs/hera.md).
 
 :func:`read_beam_file` refuses, in one line, what msleak cannot turn into Jones matrices:
 unreadable files, power beams, feeds other than x and y, basis vectors not along azimuth
@@ -15,8 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msleak.beam.base import BeamUnavailable
-from msleak.errors import InputError
+from msleak.errors import BeamUnavailable, InputError
 
 try:
     from pyuvdata import UVBeam
@@ -38,7 +37,7 @@ def default_beam_file() -> Path:
     try:
         path = importlib.resources.files("pyuvsim").joinpath("data", "HERA_NicCST.beamfits")
     except ModuleNotFoundError:
-        raise BeamUnavailable("the default --beam uvbeam file (HERA_NicCST.beamfits) comes "
+        raise BeamUnavailable("the default uvbeam beam file (HERA_NicCST.beamfits) comes "
                               "with pyuvsim, which is not installed",
                               remedy="pip install 'msleak[hera]', or give a beam with "
                                      "`--beam-file PATH`") from None

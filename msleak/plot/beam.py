@@ -27,7 +27,7 @@ def plot_beam_maps(ds, path: str | Path, *, title: str | None = None, pdf: bool 
     Parameters
     ----------
     ds : xarray.Dataset
-        From :func:`msleak.beam.maps.beam_maps`.
+        From :func:`msleak.verbs.beam_maps.beam_maps`.
     path : path
         Output image (PNG; a PDF beside it if ``pdf``).
     title : str, optional

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from msleak.beam import BeamUnavailable, load_beam
+from msleak.adapters.beams import load_beam
 from msleak.beam.maps import sin_grid
-from msleak.errors import InputError
+from msleak.errors import BeamUnavailable, InputError
 from msleak.io import ms as msio
 from msleak.ps.gridding import gridder_response
 

@@ -23,7 +23,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
-from msleak.beam import beam_options
+from msleak.adapters.beams import beam_options
 from msleak.errors import InputError, MsleakError
 from msleak.io import columns as colio
 from msleak.io.ms import append_history, check_ms, open_table

@@ -21,7 +21,7 @@ from typing import Iterator
 
 import numpy as np
 
-from msleak.beam import load_beam
+from msleak.adapters.beams import load_beam
 from msleak.conventions import CorrelationLayout
 from msleak.io import columns as colio
 from msleak.io.ms import iter_rows, read_used_antennas
@@ -81,7 +81,7 @@ def _load_beam(name: str, ms: Path, options: dict | None = None):
 def register_beam(token: str, beam: str, ms: Path, groups: list, beam_options: dict
                   ) -> dict:
     """Load the beam model of the stations in ``groups`` for run ``token`` in this process
-    (with the :func:`msleak.beam.load_beam` options ``beam_options``) and return the
+    (with the :func:`msleak.adapters.beams.load_beam` options ``beam_options``) and return the
     options that name them (so no worker reads the main table predict writes)."""
     options = dict(beam_options)
     if beam != "none":

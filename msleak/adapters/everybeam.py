@@ -1,5 +1,7 @@
 """EveryBeam itself, one call per direction: the reference path (``everybeam-direct``).
 
+EveryBeam loads its telescope from the MS path, so this model reads the MS itself.
+
 Directions are converted to ITRF one by one with casacore (the frame EveryBeam uses), and
 ``PhasedArray.station_response(times, stations, freqs, direction, station0, tile0)`` gives
 all stations and channels of one direction per call.  Telescopes whose bindings lack that
@@ -27,11 +29,12 @@ from msleak._everybeam import (
     everybeam_telescope,
     import_everybeam,
 )
-from msleak.beam.base import BeamModel, BeamUnavailable
-from msleak.beam.coords import clip_pole, exact_j2000_to_itrf
-from msleak.beam.lofar_array import read_lofar_array
+from msleak.adapters.beams import read_lofar_array
+from msleak.beam.base import BeamModel
+from msleak.beam.coords import clip_pole
 from msleak.beam.lofar_fast import sky_rotation
-from msleak.errors import InputError
+from msleak.errors import BeamUnavailable, InputError
+from msleak.io.measures import exact_j2000_to_itrf
 from msleak.io.ms import (
     has_subtable,
     iter_rows,
