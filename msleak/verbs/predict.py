@@ -96,10 +96,9 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
 
     Returns
     -------
-    PredictResult (one MS and one sky given as a single object), else a list of them, MS
-    by MS, sky by sky; with ``column=None`` an ``xr.DataArray`` (row, chan, corr) per sky
-    (a list when ``sky`` is a sequence), coordinates row, time (MJD s), antenna1, antenna2,
-    freq (Hz), corr.
+    PredictResult (one MS and one sky given singly), else a list, MS by MS, sky by sky; with
+    ``column=None`` an ``xr.DataArray`` (row, chan, corr) per sky (a list when ``sky`` is a
+    sequence), coordinates row, time (MJD s), antenna1, antenna2, freq (Hz), corr.
     """
     given = dict(locals())
     t_start = _time.perf_counter()
@@ -110,14 +109,12 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     options = beam_options(beam, diameter=diameter, element_model=element_model,
                            beam_file=beam_file)
     _check_options(paths, targets, double_column)
-    degrid = DegridOptions(method, epsilon, nsub)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
-    runs = [runstate.new_run(make_plan(p, targets, beam=beam,
-                                       centre_correction=centre_correction,
-                                       interpolate_frequency=interpolate_frequency,
-                                       dtype=dtype, field_sel=field, spw_sel=spw,
-                                       beam_options=options, double_column=double_column,
-                                       degrid=degrid)) for p in paths]
+    plan_args = dict(beam=beam, centre_correction=centre_correction,
+                     interpolate_frequency=interpolate_frequency, dtype=dtype,
+                     field_sel=field, spw_sel=spw, beam_options=options,
+                     double_column=double_column, degrid=DegridOptions(method, epsilon, nsub))
+    runs = [runstate.new_run(make_plan(p, targets, **plan_args)) for p in paths]
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -125,10 +122,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         arrays = _predict_in_memory(runs[0], scheduler, workers, budget, **args)
         return arrays[0] if one_sky else arrays
     _run(runs, scheduler, workers, budget, restart=restart, **args)
-    command = call_record(predict, given)
-    for run in runs:
-        _append_history(run, command)
-    results = [res for run in runs for res in run.results]
+    results = _append_history(runs, call_record(predict, given))
     return results[0] if single_ms and one_sky else results
 
 
@@ -325,15 +319,17 @@ def _data_arrays(plan, parts: list) -> list:
     return out
 
 
-def _append_history(run, command: str) -> None:
-    """One MS HISTORY row saying what the run wrote."""
-    plan = run.plan
-    skies = "; ".join(f"{t.label} -> {t.column}{' (unchanged)' if r.skipped else ''}"
-                      for t, r in zip(plan.targets, run.results))
-    s = plan.settings[0]
-    append_history(plan.ms, f"predict: {skies}; beam {s['beam']}, centre correction "
-                            f"{'on' if s['centre_correction'] else 'off'}, {s['precision']}",
-                   command=command)
+def _append_history(runs: list, command: str) -> list:
+    """One MS HISTORY row per MS saying what the run wrote; the runs' results."""
+    for run in runs:
+        plan = run.plan
+        skies = "; ".join(f"{t.label} -> {t.column}{' (unchanged)' if r.skipped else ''}"
+                          for t, r in zip(plan.targets, run.results))
+        s = plan.settings[0]
+        append_history(plan.ms, f"predict: {skies}; beam {s['beam']}, centre correction "
+                                f"{'on' if s['centre_correction'] else 'off'}, "
+                                f"{s['precision']}", command=command)
+    return [res for run in runs for res in run.results]
 
 
 class _NoBar:
