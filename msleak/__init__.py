@@ -21,9 +21,9 @@ _VERBS = {
     "make_sky": "msleak.sky.make:make_sky",
     "beam_maps": "msleak.verbs.beam_maps:beam_maps",
     "predict": "msleak.predict",
-    "grid": "msleak.ps.grid:grid",
-    "transform": "msleak.ps.transform:transform",
-    "power_spectrum": "msleak.ps.power:power_spectrum",
+    "grid": "msleak.verbs.grid:grid",
+    "transform": "msleak.verbs.transform:transform",
+    "power_spectrum": "msleak.verbs.power:power_spectrum",
     "leakage": "msleak.leakage",
 }
 

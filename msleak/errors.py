@@ -11,7 +11,12 @@ quoted as a Python setting (`` `beam='dipole'` ``) becomes the option (`` `--bea
 
 from __future__ import annotations
 
+import re
+
 __all__ = ["MsleakError", "InputError", "ConfigurationError", "BeamUnavailable"]
+
+#: a setting quoted in a message, `` `name=value` ``: ``name`` is a parameter
+_SETTING = re.compile(r"`([a-z_][a-z0-9_]*)=")
 
 
 class MsleakError(Exception):
@@ -23,12 +28,15 @@ class MsleakError(Exception):
         The line, naming parameters by their Python names.
     param : str or sequence of str, optional
         The parameters the message names (as whole words, or in backticks where the name is
-        also an ordinary word of the message); the CLI writes each as its flag.
+        also an ordinary word of the message); the CLI writes each as its flag. Settings
+        quoted in the message (`` `beam='dipole'` ``) are added.
     """
 
     def __init__(self, message: str = "", *, param: str | tuple[str, ...] | list[str] = ()):
         super().__init__(message)
-        self.params: tuple[str, ...] = (param,) if isinstance(param, str) else tuple(param)
+        given = (param,) if isinstance(param, str) else tuple(param)
+        settings = tuple(_SETTING.findall(str(message)))
+        self.params: tuple[str, ...] = tuple(dict.fromkeys(given + settings))
 
 
 class InputError(MsleakError, ValueError):
@@ -45,7 +53,8 @@ class BeamUnavailable(InputError):
     on; the message is ``reason; [setting, or ]remedy``.  Commands whose options differ
     (``msleak grid``) re-raise it with their own remedy."""
 
-    def __init__(self, reason: str, remedy: str = "use `--beam dipole` (analytic beam)",
-                 setting: str = ""):
+    def __init__(self, reason: str, remedy: str = "use `beam='dipole'` (analytic beam)",
+                 setting: str = "", *, param: str | tuple[str, ...] = ()):
         self.reason, self.remedy, self.setting = reason, remedy, setting
-        super().__init__(f"{reason}; {setting + ', or ' if setting else ''}{remedy}")
+        super().__init__(f"{reason}; {setting + ', or ' if setting else ''}{remedy}",
+                         param=param)

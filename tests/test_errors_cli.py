@@ -336,8 +336,8 @@ def test_multiple_fields_without_selection(small_lofar_ms, tmp_path):
 def products(tmp_path_factory, _small_lofar_ms_master):
     """A uv cube, delay cube and PS of the session MS (read only)."""
     from msleak.io.products import open_product, save_product
-    from msleak.ps.power import power_spectrum
-    from msleak.ps.transform import transform
+    from msleak.verbs.power import power_spectrum
+    from msleak.verbs.transform import transform
     import msleak
 
     d = tmp_path_factory.mktemp("products")

@@ -82,8 +82,8 @@ def world(tmp_path_factory, _small_lofar_ms_master):
     """Valid inputs of every kind, made once: MS, sky cube, sky model, products."""
     from msleak.io.fits import write_cube
     from msleak.io.products import open_product, save_product
-    from msleak.ps.power import power_spectrum
-    from msleak.ps.transform import transform
+    from msleak.verbs.power import power_spectrum
+    from msleak.verbs.transform import transform
     import msleak
     from msleak.sky.foreground import generate_foreground_cube
 

@@ -1,6 +1,6 @@
 """Memory planning of ``msleak grid``: what the accumulators, a chunk task and a whole run
 allocate (numpy arrays, traced with tracemalloc) on a small real-writer MS, against the
-model ``msleak.ps.grid_tasks.working_set`` that sizes the chunks from ``--memory-limit``.
+model ``msleak.ps.chunks.working_set`` that sizes the chunks from ``--memory-limit``.
 
 Known answers, counted here from the array shapes: an accumulator holds its cells
 (complex128 per Stokes parameter, and per unit-visibility image for ``wgrid``), float64
@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 
 from casa_ms import build_ms
-from msleak.ps import grid_tasks
-from msleak.ps.grid_tasks import (Job, Spec, check_input, plan_chunks, rows_for_memory,
-                                  run_tasks, working_set)
+from msleak.ps.chunks import Spec, plan_chunks, rows_for_memory, working_set
 from msleak.ps.gridding import BOX_FACTOR, accumulator_bytes, make_accumulator, make_grid
+from msleak.verbs import grid_tasks
+from msleak.verbs.grid_tasks import Job, check_input, run_tasks
 
 COLUMNS = ("DATA", "MODEL_A", "MODEL_B")
 NCHAN = 16
@@ -169,6 +169,6 @@ def test_plan_runs_fewer_chunks_before_going_below_1000_rows(ms, caplog):
     assert plan_chunks(two, NCHAN, spec, 2) == (1000, 2)
     rows, tasks = plan_chunks(two - 1, NCHAN, spec, 2)
     assert tasks == 1 and rows >= 1000 and working_set(rows, NCHAN, spec, 1) <= two - 1
-    with caplog.at_level(logging.WARNING, logger="msleak.ps.grid_tasks"):
+    with caplog.at_level(logging.WARNING, logger="msleak.ps.chunks"):
         assert plan_chunks(one - 1, NCHAN, spec, 2) == (1000, 1)
     assert "is less than the grids and one chunk of 1000 rows need" in caplog.text

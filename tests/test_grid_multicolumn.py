@@ -156,7 +156,7 @@ def test_incomplete_column_among_several_is_refused_before_gridding(four_column_
     import casacore.tables as pt
 
     from msleak.io.columns import RUN_KEYWORD
-    from msleak.ps import grid_tasks
+    from msleak.verbs import grid_tasks
 
     ms = tmp_path / "copy.ms"
     shutil.copytree(four_column_ms, ms)

@@ -102,7 +102,7 @@ def test_spw_is_looked_up_and_field_taken_by_name(random_ms, tmp_path):
                                rtol=0, atol=1e-3)
     assert (by_name.attrs["spw_id"], by_name.attrs["ddid"], by_name.attrs["field_id"]) == (1, 0, 0)
     with pytest.raises(InputError, match="no cross-correlation rows for field 0, spectral "
-                                         "window 0; choose others with --field, --spw"):
+                                         "window 0; choose others with field, spw"):
         msleak.grid(ms, uv_range=UV, gridder="cell", spw=0)
     _one_line_error(_invoke("grid", ms, "--spw", "5", "-o", tmp_path / "g.h5"),
                     "no spectral window 5 in the DATA_DESCRIPTION table (spectral windows: "
@@ -115,7 +115,7 @@ def test_spw_is_looked_up_and_field_taken_by_name(random_ms, tmp_path):
 
 
 def test_existing_output_is_refused_before_any_work(random_ms, tmp_path, monkeypatch):
-    from msleak.ps import grid_tasks
+    from msleak.verbs import grid_tasks
 
     out = tmp_path / "g.h5"
     out.write_text("keep me")
@@ -137,7 +137,7 @@ def test_existing_output_is_refused_before_any_work(random_ms, tmp_path, monkeyp
 
 
 def test_verb_outputs_pair_with_columns(random_ms, tmp_path):
-    with pytest.raises(InputError, match="2 --column but 1 -o/--output given"):
+    with pytest.raises(InputError, match="2 columns but 1 outputs given"):
         msleak.grid(random_ms, column=["DATA", "WEIGHT_SPECTRUM"], output=tmp_path / "a.h5")
     with pytest.raises(InputError, match="column DATA is given twice"):
         msleak.grid(random_ms, column=["DATA", "DATA"])
@@ -145,25 +145,25 @@ def test_verb_outputs_pair_with_columns(random_ms, tmp_path):
 
 @pytest.mark.parametrize("kwargs, message", [
     (dict(image="x.fits", output=["a.h5", "b.h5"]),
-     "--image makes one uv cube but 2 -o/--output are given; give one"),
-    (dict(), "give either a Measurement Set or --image (not both)"),
-    (dict(cell=-1.0), "--cell must be a positive number of wavelengths, got -1.0"),
-    (dict(uv_range=(30.0,)), "--uv-range needs MIN,MAX (wavelengths)"),
-    (dict(uv_range=(180.0, 30.0)), "--uv-range 180,30: empty range"),
-    (dict(beam_area_model="gauss"), "unknown --beam-area-model 'gauss': use auto, "
+     "image makes one uv cube but 2 outputs are given; give one"),
+    (dict(), "give either a Measurement Set or image (not both)"),
+    (dict(cell=-1.0), "cell must be a positive number of wavelengths, got -1.0"),
+    (dict(uv_range=(30.0,)), "uv_range needs MIN,MAX (wavelengths)"),
+    (dict(uv_range=(180.0, 30.0)), "uv_range 180,30: empty range"),
+    (dict(beam_area_model="gauss"), "unknown beam_area_model 'gauss': use auto, "
                                     "everybeam, dipole, airy"),
     (dict(gridder="fft"), "unknown gridder 'fft': use 'wgrid' or 'cell'"),
     (dict(split="odd"), "unknown split 'odd': use even-odd or first-second"),
-    (dict(chunk_rows=0), "--chunk-rows must be positive"),
-    (dict(epsilon=float("nan")), "--epsilon must be a relative accuracy between 0 and 1, "
+    (dict(chunk_rows=0), "chunk_rows must be positive"),
+    (dict(epsilon=float("nan")), "epsilon must be a relative accuracy between 0 and 1, "
                                  "got nan"),
-    (dict(epsilon=0.0), "--epsilon must be a relative accuracy between 0 and 1, got 0"),
-    (dict(epsilon=1.0), "--epsilon must be a relative accuracy between 0 and 1, got 1"),
-    (dict(epsilon=1e-15), "--epsilon 1e-15: this ducc0's gridder has no kernel this "
+    (dict(epsilon=0.0), "epsilon must be a relative accuracy between 0 and 1, got 0"),
+    (dict(epsilon=1.0), "epsilon must be a relative accuracy between 0 and 1, got 1"),
+    (dict(epsilon=1e-15), "epsilon 1e-15: this ducc0's gridder has no kernel this "
                           "accurate"),
 ])
 def test_verb_option_errors(random_ms, kwargs, message):
-    """Each refused before any MS row is read (one line, the CLI's wording)."""
+    """Each refused before any MS row is read (one line, naming the parameters)."""
     ms = None if "image" in kwargs or not kwargs else random_ms
     with pytest.raises(InputError) as err:
         msleak.grid(ms, **kwargs)
@@ -177,7 +177,7 @@ def test_stokes_of_images_must_share_channels(channel_images, tmp_path):
     with pytest.raises(InputError, match="the images give Stokes U other channels than "
                                          "Stokes Q; give every Stokes parameter the same"):
         msleak.grid(image=q_all + u_short)
-    with pytest.raises(InputError, match="--stokes 'Q,X': use I, Q, U or V"):
+    with pytest.raises(InputError, match="stokes 'Q,X': use I, Q, U or V"):
         msleak.grid(image=whole, stokes="Q,X")
 
 
@@ -248,7 +248,7 @@ def test_per_channel_image_errors(channel_images, tmp_path):
         msleak.grid(image=[*per_channel, twice])
     with pytest.raises(InputError, match="not evenly spaced"):
         msleak.grid(image=[p for p in per_channel if "0002" not in p.name])
-    with pytest.raises(InputError, match="no file matches --image"):
+    with pytest.raises(InputError, match="no file matches image"):
         msleak.grid(image=str(tmp_path / "none-*.fits"))
 
 

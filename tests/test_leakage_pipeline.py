@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from msleak.leakage import analyse, leakage_voxels
-from msleak.ps.power import power_spectrum
-from msleak.ps.transform import transform
-from msleak.ps.grid_tasks import uvcube_dataset
+from msleak.verbs.power import power_spectrum
+from msleak.verbs.transform import transform
+from msleak.ps.uvcube import uvcube_dataset
 
 NCHAN, DNU, CELL, M = 50, 195312.5, 16.0, 12
 FREQ = 150e6 + DNU * np.arange(NCHAN)

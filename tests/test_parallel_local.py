@@ -141,8 +141,8 @@ def _grid(ms, **kw):
 
 
 def _ps(cube):
-    from msleak.ps.power import power_spectrum
-    from msleak.ps.transform import transform
+    from msleak.verbs.power import power_spectrum
+    from msleak.verbs.transform import transform
 
     return power_spectrum(transform(cube, partial="zero"))
 
@@ -191,7 +191,7 @@ def test_gap_is_reported_and_left_empty(make_ms, caplog):
     np.testing.assert_allclose(cube["freq"].values, 150e6 + WIDTH * np.arange(8), rtol=1e-15)
     weight = cube["weight"].values
     assert not weight[3:5].any() and weight[[0, 1, 2, 5, 6, 7]].reshape(6, -1).any(axis=1).all()
-    from msleak.ps.transform import transform
+    from msleak.verbs.transform import transform
 
     delay = transform(cube, partial="zero")
     assert delay.attrs["flagged_channels"] == 2
@@ -259,7 +259,7 @@ def test_predict_twice_same_ms_is_an_error(small_lofar_ms, sky):
 def test_memory_budget_is_shared_and_bounds_chunks():
     from msleak.parallel import open_runner
     from msleak.ps.gridding import make_grid
-    from msleak.ps.grid_tasks import Spec, rows_for_memory, working_set
+    from msleak.ps.chunks import Spec, rows_for_memory, working_set
 
     with open_runner("threads", 4, 8e8) as runner:
         assert runner.workers == 4 and runner.memory_per_task == pytest.approx(2e8)

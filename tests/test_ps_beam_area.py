@@ -1,4 +1,4 @@
-"""Omega from the MS's beam model (msleak.ps.beam_area) against answers known in advance."""
+"""Omega from the MS's beam model (ms_beam_area) against answers known in advance."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from msleak.ps.beam_area import beam_area_from_power, ms_beam_area
+from msleak.ps.beam_area import beam_area_from_power
 from msleak.ps.gridding import beam_area_model, gridder_response, response_profile
+from msleak.verbs.grid_tasks import ms_beam_area
 import msleak
 
 

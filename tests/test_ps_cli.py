@@ -51,11 +51,11 @@ def _sky(n=32, seed=4):
 
 def test_image_path_matches_visibility_path(tmp_path):
     """Same sky: FFT of the image cube vs. gridded visibilities sampled at cell centres."""
-    from msleak.ps.fitscube import grid_image
+    from msleak.verbs.images import grid_image
     from msleak.ps.gridding import CellAccumulator, make_grid
-    from msleak.ps.power import power_spectrum
-    from msleak.ps.transform import transform
-    from msleak.ps.grid_tasks import uvcube_dataset
+    from msleak.verbs.power import power_spectrum
+    from msleak.verbs.transform import transform
+    from msleak.ps.uvcube import uvcube_dataset
 
     n, cell = 32, 16.0
     dl = 1 / (n * cell)  # rad: the image's cells are then 16 wavelengths
@@ -181,7 +181,7 @@ def test_cli_ms_errors(small_lofar_ms, tmp_path, case, pattern):
 
 
 def test_cli_image_without_freq_axis(tmp_path):
-    from msleak.ps.fitscube import grid_image
+    from msleak.verbs.images import grid_image
 
     path = _write_cube(tmp_path / "nofreq.fits", _sky(), 0.1, freq_axis=False)
     r = _run("grid", "--image", path, "-o", tmp_path / "g.h5")

@@ -157,9 +157,9 @@ def test_flat_spectrum_source_power_follows_response_only():
     """Flat-spectrum 1 Jy source, regular sampling in wavelengths in every channel: the
     delay power is R^2 at k_par = 0 in every k_perp bin (rel 1e-5) and zero elsewhere,
     so power / R^2 does not depend on where the source is."""
-    from msleak.ps.power import power_spectrum
-    from msleak.ps.transform import transform
-    from msleak.ps.grid_tasks import uvcube_dataset
+    from msleak.verbs.power import power_spectrum
+    from msleak.verbs.transform import transform
+    from msleak.ps.uvcube import uvcube_dataset
 
     grid = make_grid(CELL, 180.0)
     nchan = 6
@@ -244,9 +244,9 @@ def test_beam_area_and_primary_fwhm_independent_integrals():
 
 
 def test_primary_wedge_follows_beam_by_default():
-    from msleak.ps.power import power_spectrum
-    from msleak.ps.transform import transform
-    from msleak.ps.grid_tasks import uvcube_dataset
+    from msleak.verbs.power import power_spectrum
+    from msleak.verbs.transform import transform
+    from msleak.ps.uvcube import uvcube_dataset
 
     g = 27
     freq = F0 + 195312.5 * np.arange(8)

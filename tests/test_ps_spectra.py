@@ -8,9 +8,9 @@ from msleak.errors import InputError
 from msleak.constants import FREQ_21CM
 from msleak.ps.cosmology import cosmo_at, get_cosmology
 from msleak.ps.delay import delay_axis, delay_transform, spectral_window
-from msleak.ps.power import power_spectrum
-from msleak.ps.transform import transform
-from msleak.ps.grid_tasks import uvcube_dataset
+from msleak.verbs.power import power_spectrum
+from msleak.verbs.transform import transform
+from msleak.ps.uvcube import uvcube_dataset
 
 NCHAN = 50
 DNU = 195312.5

@@ -272,7 +272,7 @@ def test_glob_leaves_out_wsclean_mfs_images(tmp_path):
     ``-channels-out`` also writes) gives the per-channel ones; named files are kept. Only
     names ending as WSClean ends an MFS image count: ``-MFS-`` elsewhere in a name (a
     user's prefix) does not."""
-    from msleak.ps.fitscube import _is_wsclean_mfs, image_paths
+    from msleak.verbs.images import _is_wsclean_mfs, image_paths
 
     names = [f"obs-{c}-{s}-image.fits" for c in ("0000", "0001", "MFS") for s in "QU"]
     names += ["obs-0000-psf.fits", "obs-MFS-psf.fits", "run-MFS-a-0000-Q-image.fits"]

@@ -85,15 +85,15 @@ def load_everybeam_telescope(ms: str | os.PathLike, element_model: str = "defaul
 
 #: the msleak beam models of telescopes EveryBeam lacks or needs a downloaded file for
 _OTHER_MODELS = {
-    "HERA": "use `--beam uvbeam` (HERA's dish beam from a UVBeam file) or `--beam dipole`",
-    "MWA": "use `--beam hyperbeam` (the MWA tile; analytic without any file) or "
-           "`--beam dipole`",
+    "HERA": "use `beam='uvbeam'` (HERA's dish beam from a UVBeam file) or `beam='dipole'`",
+    "MWA": "use `beam='hyperbeam'` (the MWA tile; analytic without any file) or "
+           "`beam='dipole'`",
 }
 
 def _remedy(ms) -> str:
     """What to use instead of EveryBeam for the telescope of ``ms``."""
     return _OTHER_MODELS.get(read_telescope_name(ms).upper(),
-                             "use `--beam dipole` (analytic beam)")
+                             "use `beam='dipole'` (analytic beam)")
 
 
 #: The fix of the environment an MWA beam may need.

@@ -139,7 +139,7 @@ class DipoleBeam(BeamModel):
             raise BeamUnavailable(
                 f"ANTENNA::DISH_DIAMETER gives no diameter (<= 0) for station(s) "
                 f"{', '.join(bad[:4])}{', ...' if len(bad) > 4 else ''}, so no Airy station "
-                "factor", remedy="pass the station diameter with `--diameter M`")
+                "factor", remedy="pass the station diameter with `diameter=M`")
         self._check_positions(positions)
         if ground_plane_height_m is not None and ground_plane_height_m <= 0:
             raise InputError("ground-plane height must be positive (m)")

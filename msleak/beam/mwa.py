@@ -40,7 +40,7 @@ ELEMENT_MODELS = ("analytic", "fee")
 #: Band (Hz) msleak accepts for the analytic model: the MWA receiver's 70-300 MHz.
 ANALYTIC_BAND_HZ = (70e6, 300e6)
 _FEE_REMEDY = (f"download {MWA_BEAM_FILE_NAME} (about 200 MB, from the MWA beam pages) and "
-               f"pass it with `--beam-file PATH` or set {MWA_BEAM_FILE_VARIABLE} to it")
+               f"pass it with `beam_file=PATH` or set {MWA_BEAM_FILE_VARIABLE} to it")
 
 
 def require_hyperbeam():
@@ -65,8 +65,8 @@ def _make_beam(element_model: str, beam_file):
     path = beam_file if beam_file is not None else os.environ.get(MWA_BEAM_FILE_VARIABLE)
     if not path:
         raise InputError("the MWA FEE beam needs its coefficients file and neither "
-                         f"`--beam-file` nor {MWA_BEAM_FILE_VARIABLE} gives one; "
-                         + _FEE_REMEDY)
+                         f"`beam_file` nor {MWA_BEAM_FILE_VARIABLE} gives one; "
+                         + _FEE_REMEDY, param="beam_file")
     try:
         beam = hb.FEEBeam(str(path))
     except hb.HyperbeamError as err:

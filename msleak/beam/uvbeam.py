@@ -53,7 +53,7 @@ def check_frequencies(freq_hz, file_freq_hz, name: str) -> None:
             f"the beam file {name} covers {lo / 1e6:g}-{hi / 1e6:g} MHz and pyuvdata does "
             f"not extrapolate; {bad[0] / 1e6:g} MHz requested ({bad.size} channel(s) "
             f"outside): simulate inside it (`msleak simulate --freq-min HZ`) or give "
-            f"another `--beam-file PATH`")
+            f"another `beam_file=PATH`")
 
 
 def frequency_weights(file_freq_hz, freq_hz) -> np.ndarray:

@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import get_args
 
 import click
 
 from msleak.cli._common import FloatList, MemorySize
+from msleak.errors import InputError
 from msleak.parallel.options import parallel_options
 from msleak.ps.beam_area import BEAM_AREA_MODELS
-from msleak.ps.grid import Split
-from msleak.ps.grid import grid as grid_verb
 from msleak.ps.gridding import Gridder
+from msleak.verbs.grid import Split
+from msleak.verbs.grid import grid as grid_verb
 
 
 @click.command()
@@ -99,6 +101,7 @@ def grid(ms, outputs, overwrite, columns, cell, uv_range, gridder, split, field,
     """
     if bool(ms) == bool(images):
         raise click.UsageError("give either an MS or --image CUBE.fits (not both)")
+    _check_outputs(outputs, columns, bool(images))
     if images:
         cubes = [grid_verb(image=list(images), output=outputs[0] if len(outputs) == 1
                            else list(outputs), overwrite=overwrite, uv_range=tuple(uv_range),
@@ -108,12 +111,29 @@ def grid(ms, outputs, overwrite, columns, cell, uv_range, gridder, split, field,
                           overwrite=overwrite, cell=cell, uv_range=tuple(uv_range),
                           gridder=gridder, split=split, field=field, spw=spw,
                           beam_area=beam_area, beam_area_model=beam_area_model,
-                          chunk_rows=chunk_rows, memory_limit=memory_limit, epsilon=epsilon,
-                          threads=threads, scheduler=scheduler, workers=workers,
-                          progress=sys.stderr.isatty())
+                          chunk_rows=chunk_rows, memory_limit=memory_limit,
+                          epsilon=epsilon, threads=threads, scheduler=scheduler,
+                          workers=workers, progress=sys.stderr.isatty())
     for output, ds in zip(outputs, cubes):
         n = int((ds["weight"].values > 0).any(axis=0).sum())
         what = f" ({ds.attrs['column']})" if len(cubes) > 1 else ""
         click.echo(f"uv cube {output}{what}: {ds.sizes['freq']} channels, "
                    f"{ds.sizes['u']}x{ds.sizes['v']} cells of {ds.attrs['cell_lambda']:.4g} "
                    f"wavelengths ({n} with data)")
+
+
+def _check_outputs(outputs, columns, image: bool) -> None:
+    """One -o per --column (one for --image), each a different file (the verb checks the
+    same in the words of its parameters, after a column given twice)."""
+    if len(set(columns)) < len(columns):
+        return
+    if len(outputs) != (1 if image else len(columns)):
+        raise InputError(f"--image makes one uv cube but {len(outputs)} -o/--output are "
+                         "given; give one" if image else f"{len(columns)} --column but "
+                         f"{len(outputs)} -o/--output given: give one -o per --column, in "
+                         "the same order")
+    seen = set()
+    for text in outputs:
+        if Path(text).resolve() in seen:
+            raise InputError(f"-o {text} is given twice: give each --column its own output")
+        seen.add(Path(text).resolve())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from msleak.cli._common import FloatList, cosmology_options
-from msleak.ps.power import power_spectrum
+from msleak.verbs.power import power_spectrum
 
 
 @click.command()

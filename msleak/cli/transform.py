@@ -6,9 +6,8 @@ from typing import get_args
 
 import click
 
-from msleak.ps.delay import WINDOWS
-from msleak.ps.transform import Partial
-from msleak.ps.transform import transform as verb
+from msleak.ps.delay import WINDOWS, Partial
+from msleak.verbs.transform import transform as verb
 
 
 @click.command()

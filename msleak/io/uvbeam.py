@@ -24,7 +24,7 @@ except ImportError:  # the [hera] extra is optional; the beam model says how to 
 
 __all__ = ["default_beam_file", "read_beam_file", "have_pyuvdata"]
 
-_REMEDY = "give an E-field beam with `--beam-file PATH`"
+_REMEDY = "give an E-field beam with `beam_file=PATH`"
 
 
 def have_pyuvdata() -> bool:
@@ -40,7 +40,7 @@ def default_beam_file() -> Path:
         raise BeamUnavailable("the default uvbeam beam file (HERA_NicCST.beamfits) comes "
                               "with pyuvsim, which is not installed",
                               remedy="pip install 'msleak[hera]', or give a beam with "
-                                     "`--beam-file PATH`") from None
+                                     "`beam_file=PATH`") from None
     return Path(str(path))
 
 

@@ -8,8 +8,8 @@
   overlaps detected.
 
 The numeric kernels stay pure; the chunk tasks live beside the code they parallelise
-(:mod:`msleak.predict.chunks`, :mod:`msleak.ps.grid_tasks`), the driver that writes or folds
-their results runs in the calling process. dask.distributed is imported only for a
+(:mod:`msleak.predict.chunks`, :mod:`msleak.verbs.grid_tasks`), the driver that writes or
+folds their results runs in the calling process. dask.distributed is imported only for a
 scheduler address.
 """
 

@@ -264,7 +264,7 @@ def _connect(address: Any):
         raise ConfigurationError(f"cannot reach the dask scheduler at {address} "
                                  f"({' '.join(str(err).split())[:120]}); start it with "
                                  "`dask scheduler` and `dask worker ADDRESS`, or use "
-                                 "scheduler threads", param="scheduler") from None
+                                 "`scheduler='threads'`") from None
     return client, True
 
 

@@ -41,7 +41,7 @@ def get_cosmology(name: str = DEFAULT_COSMOLOGY) -> Cosmology:
     available = list(realizations.available)
     if name not in available:
         raise InputError(f"unknown cosmology {name!r}: use one of {', '.join(available)}, "
-                         "or --h0 and --om0 for a flat LambdaCDM")
+                         "or h0 and om0 for a flat LambdaCDM", param=("h0", "om0"))
     return getattr(realizations, name)
 
 
@@ -54,30 +54,33 @@ def make_cosmology(cosmology: str | Cosmology | None = None, *, h0: float | None
     ``h0`` (km/s/Mpc) and ``om0`` (with optional ``ob0`` and ``tcmb0`` in K) give a
     ``FlatLambdaCDM``. A name and H0/Om0 exclude each other.
     """
-    params = {"--h0": h0, "--om0": om0, "--ob0": ob0, "--tcmb0": tcmb0}
+    params = {"h0": h0, "om0": om0, "ob0": ob0, "tcmb0": tcmb0}
     given = [k for k, v in params.items() if v is not None]
     if not given:
         if cosmology is None or isinstance(cosmology, str):
             return get_cosmology(cosmology or DEFAULT_COSMOLOGY)
         return cosmology
     if cosmology is not None:
-        raise InputError(f"--cosmology and {'/'.join(given)} exclude each other: give a "
-                         "realisation name or --h0 and --om0 (flat LambdaCDM)")
+        raise InputError(f"cosmology and {'/'.join(given)} exclude each other: give a "
+                         "realisation name or h0 and om0 (flat LambdaCDM)",
+                         param=("cosmology", *given, "h0", "om0"))
     if h0 is None or om0 is None:
-        raise InputError(f"{'/'.join(given)} without {'--h0' if h0 is None else '--om0'}: a "
-                         "flat LambdaCDM needs both --h0 and --om0 (or use --cosmology NAME)")
+        raise InputError(f"{'/'.join(given)} without {'h0' if h0 is None else 'om0'}: a "
+                         "flat LambdaCDM needs both h0 and om0 (or use cosmology NAME)",
+                         param=(*given, "h0", "om0", "cosmology"))
     for opt, v in params.items():
-        positive = opt in ("--h0", "--om0")
+        positive = opt in ("h0", "om0")
         if v is not None and not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
             raise InputError(f"{opt} {v:g}: must be a {'positive' if positive else 'non-negative'}"
-                             " finite number")
+                             " finite number", param=opt)
     from astropy.cosmology import FlatLambdaCDM
 
     try:
         return FlatLambdaCDM(H0=h0, Om0=om0, Tcmb0=tcmb0 or 0.0,
                              **({} if ob0 is None else {"Ob0": ob0}))
     except ValueError as err:
-        raise InputError(f"flat LambdaCDM (--h0 {h0:g} --om0 {om0:g}): {err}") from err
+        raise InputError(f"flat LambdaCDM (h0 {h0:g} om0 {om0:g}): {err}",
+                         param=("h0", "om0")) from err
 
 
 def describe(cosmo: Cosmology) -> dict:

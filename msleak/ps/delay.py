@@ -6,7 +6,8 @@ every uv cell along frequency, with delays from :func:`delay_axis` (s, fftshift 
 white noise. Channels empty in every cell (:func:`channel_mask`) enter as zeros; cells
 with partial channel coverage are dropped or zero-filled (``partial``).
 
-The FFT convention and the treatment of empty channels: docs/transform.md.
+:func:`delay_dataset` builds the delay product's Dataset from a uvcube Dataset. The FFT
+convention and the treatment of empty channels: docs/transform.md.
 """
 
 from __future__ import annotations
@@ -15,13 +16,17 @@ import logging
 from typing import Literal
 
 import numpy as np
+import xarray as xr
 
 from msleak.errors import InputError
 
-__all__ = ["WINDOWS", "FFT_CONVENTION", "spectral_window", "delay_axis", "delay_transform",
-           "channel_mask"]
+__all__ = ["WINDOWS", "FFT_CONVENTION", "Partial", "spectral_window", "delay_axis",
+           "delay_transform", "channel_mask", "delay_dataset"]
 
 log = logging.getLogger(__name__)
+
+#: cells empty in some unflagged channels: dropped, or those channels filled with zeros
+Partial = Literal["drop", "zero"]
 
 FFT_CONVENTION = ("V~(b,tau_k) = (1/N) sum_n w_n V(b,nu_n) exp(-2 pi i n k/N), "
                   "tau_k = k/(N dnu) s, k = -N/2..N/2-1 (fftshift order)")
@@ -122,3 +127,49 @@ def delay_transform(vis: np.ndarray, weight: np.ndarray, window: np.ndarray, *,
     cell_weight = np.where(used, weight.sum(axis=0), 0.0)
     window_norm = float(np.sum(w_eff ** 2) / nchan)
     return out, cell_weight, window_norm, chan_ok
+
+
+def delay_dataset(uv: xr.Dataset, window: str = "blackman-harris",
+                  partial: Partial = "drop") -> xr.Dataset:
+    """The delay Dataset of a checked uvcube Dataset (see :func:`transform`)."""
+    freq = uv["freq"].values
+    nchan = freq.size
+    if nchan < 2:
+        raise InputError(f"the uv cube has {nchan} channel(s); a delay transform needs >= 2")
+    dnu = float(np.median(np.diff(freq)))
+    if not np.allclose(np.diff(freq), dnu, rtol=1e-6, atol=0):
+        raise InputError("the uv cube channels are not evenly spaced")
+    win = spectral_window(window, nchan)
+    weight = uv["weight"].values
+    if "vis_a" in uv:  # halves: a cell must hold data in both halves to be used
+        weight = np.where((uv["weight_a"].values > 0) & (uv["weight_b"].values > 0), weight, 0)
+    out = {}
+    cell_weight = window_norm = chan_ok = None
+    for name in [n for n in ("vis", "vis_a", "vis_b") if n in uv]:
+        vt, cell_weight, window_norm, chan_ok = delay_transform(
+            uv[name].values, weight, win, partial=partial)
+        out[name] = (("stokes", "delay", "v", "u"), vt, {"units": uv[name].attrs.get("units",
+                                                                                    "Jy")})
+    out["weight"] = (("v", "u"), cell_weight, {"units": "1",
+                                               "long_name": "sum of weights over channels"})
+    out["window_values"] = (("freq",), win * chan_ok, {"units": "1"})
+    ds = xr.Dataset(out, coords={
+        "stokes": uv["stokes"].values, "delay": ("delay", delay_axis(nchan, dnu), {"units": "s"}),
+        "v": ("v", uv["v"].values, {"units": "wavelengths"}),
+        "u": ("u", uv["u"].values, {"units": "wavelengths"}),
+        "freq": ("freq", freq, {"units": "Hz"})})
+    ds.attrs.update(uv.attrs)
+    for key in ("msleak_product", "created", "command"):
+        ds.attrs.pop(key, None)
+    ds.attrs.update({
+        "window": window.lower(), "window_norm": window_norm,
+        "window_norm_definition": "sum(window^2 * channel_mask) / nchan",
+        "freq_centre_hz": float(0.5 * (freq[0] + freq[-1])), "bandwidth_hz": nchan * dnu,
+        "nchan": nchan, "channel_width_hz": dnu, "fft_convention": FFT_CONVENTION,
+        "flagged_channels": int((~chan_ok).sum()), "empty_cell_policy": partial,
+        "n_cells_used": int((cell_weight > 0).sum()),
+    })
+    if ds.attrs["n_cells_used"] == 0:
+        raise InputError("no uv cell holds data in every channel; give partial 'zero' or a "
+                         "wider uv range", param="partial")
+    return ds

@@ -49,7 +49,8 @@ def to_jy_per_pixel(cube: np.ndarray, unit: str, freq_hz: np.ndarray, pixel_sr: 
     if canon == "Jy/beam":
         if not beam_sr or beam_sr <= 0:
             raise InputError("image in Jy/beam without a beam size (BMAJ/BMIN): give "
-                             "--beam-fwhm or use an image with a restoring beam")
+                             "beam_fwhm or use an image with a restoring beam",
+                             param="beam_fwhm")
         return cube * (pixel_sr / beam_sr)
     scale = 1e-3 if canon == "mK" else 1.0
     k_to_jy = jy_per_kelvin(freq_hz, pixel_sr)

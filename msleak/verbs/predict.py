@@ -173,9 +173,9 @@ def _runner(runs: list, scheduler, workers, budget: int):
             for run in runs:
                 model = chunks.registered_beam(run.plan.beam_token)
                 if type(model).__name__ == "EveryBeamDirect":
-                    raise InputError("beam everybeam-direct reads the MS main table, which "
-                                     "stays locked while predict writes it; use scheduler "
-                                     "threads or sync", param=("beam", "scheduler"))
+                    raise InputError("`beam='everybeam-direct'` reads the MS main table, "
+                                     "which stays locked while predict writes it; use "
+                                     "`scheduler='threads'` or `scheduler='sync'`")
         yield runner
 
 

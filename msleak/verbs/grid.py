@@ -2,8 +2,8 @@
 columns or image cubes.
 
 :func:`grid` plans (checks the MSs, their common frequency axis and the uv grid), runs
-the chunk tasks of :mod:`msleak.ps.grid_tasks`, and describes the result (attributes,
-Omega, provenance); image cubes go through :mod:`msleak.ps.fitscube`. See docs/grid.md.
+the chunk tasks of :mod:`msleak.verbs.grid_tasks`, and describes the result (attributes,
+Omega, provenance); image cubes go through :mod:`msleak.verbs.images`. See docs/grid.md.
 """
 
 from __future__ import annotations
@@ -26,10 +26,12 @@ from msleak.io.columns import read_run_state
 from msleak.io.ms import open_table, read_history
 from msleak.io.products import call_record, open_product, refuse_existing, save_product, stamp
 from msleak.parallel import frequency_layout
-from msleak.ps.beam_area import BEAM_AREA_MODELS, ms_beam_area
-from msleak.ps.fitscube import grid_image
-from msleak.ps.grid_tasks import Input, Spec, check_input, run_tasks, uvcube_dataset
+from msleak.ps.beam_area import BEAM_AREA_MODELS
+from msleak.ps.chunks import Input, Spec
 from msleak.ps.gridding import GRIDDER_DESCRIPTIONS, Gridder, make_grid, response_attrs
+from msleak.ps.uvcube import uvcube_dataset
+from msleak.verbs.grid_tasks import check_input, ms_beam_area, run_tasks
+from msleak.verbs.images import grid_image
 
 __all__ = ["grid", "Split"]
 
@@ -44,9 +46,8 @@ def grid(ms: PathLike | Sequence[PathLike] | None = None, *,
          image: PathLike | Sequence[PathLike] | None = None,
          output: PathLike | Sequence[PathLike] | None = None, overwrite: bool = False,
          cell: float = 16.0, uv_range: tuple[float, float] = (30.0, 180.0),
-         gridder: Gridder = "wgrid", split: Split | None = None,
-         field: int | str = 0, spw: int | str = 0,
-         beam_area: float | None = None, beam_area_model: str = "auto",
+         gridder: Gridder = "wgrid", split: Split | None = None, field: int | str = 0,
+         spw: int | str = 0, beam_area: float | None = None, beam_area_model: str = "auto",
          stokes: str | Sequence[str] | None = None, fov: float | None = None,
          beam_fwhm: float | None = None, chunk_rows: int | None = None,
          memory_limit: float | None = 2 * 1024**3, epsilon: float = 1e-6, threads: int = 1,
@@ -106,20 +107,12 @@ def grid(ms: PathLike | Sequence[PathLike] | None = None, *,
     command = call_record(grid, dict(locals()))
     columns = [column] if isinstance(column, str) else list(column)
     outputs = _outputs(output, columns, image is not None, overwrite)
-    uv = _uv_range(uv_range)
-    if not (isinstance(cell, (int, float, np.floating)) and math.isfinite(cell) and cell > 0):
-        raise InputError(f"--cell must be a positive number of wavelengths, got {cell}")
-    if (ms is None) == (image is None):
-        raise InputError("give either a Measurement Set or --image (not both)")
-    if beam_area_model not in BEAM_AREA_MODELS:
-        raise InputError(f"unknown --beam-area-model {beam_area_model!r}: use "
-                         f"{', '.join(BEAM_AREA_MODELS)}")
+    uv = _check_settings(ms, image, cell, uv_range, beam_area_model)
     if image is not None:
         cubes = [grid_image(image, stokes=stokes, fov_deg=fov, uv_range=uv,
                             beam_fwhm_deg=beam_fwhm, beam_area_sr=beam_area)]
     else:
-        paths = [ms] if isinstance(ms, (str, os.PathLike)) else list(ms)
-        plan = _plan(paths, columns, field=field, spw=spw, cell=cell, uv=uv, gridder=gridder,
+        plan = _plan(ms, columns, field=field, spw=spw, cell=cell, uv=uv, gridder=gridder,
                      split=split, epsilon=epsilon, threads=threads, chunk_rows=chunk_rows)
         totals, stats = _run(plan, chunk_rows, scheduler, workers, memory_limit, progress)
         cubes = _describe(plan, totals, stats, beam_area, beam_area_model)
@@ -129,13 +122,29 @@ def grid(ms: PathLike | Sequence[PathLike] | None = None, *,
     return cubes if image is None and not isinstance(column, str) else cubes[0]
 
 
+def _check_settings(ms, image, cell, uv_range, beam_area_model: str) -> tuple[float, float]:
+    """The checked uv range; refuses a cell that is not a positive number, both or neither
+    of ``ms`` and ``image``, and an unknown beam-area model."""
+    uv = _uv_range(uv_range)
+    if not (isinstance(cell, (int, float, np.floating)) and math.isfinite(cell) and cell > 0):
+        raise InputError(f"cell must be a positive number of wavelengths, got {cell}",
+                         param="cell")
+    if (ms is None) == (image is None):
+        raise InputError("give either a Measurement Set or image (not both)", param="image")
+    if beam_area_model not in BEAM_AREA_MODELS:
+        raise InputError(f"unknown beam_area_model {beam_area_model!r}: use "
+                         f"{', '.join(BEAM_AREA_MODELS)}", param="beam_area_model")
+    return uv
+
+
 def _uv_range(uv_range) -> tuple[float, float]:
     if len(uv_range) != 2:
-        raise InputError(f"--uv-range needs MIN,MAX (wavelengths), got {uv_range}")
+        raise InputError(f"uv_range needs MIN,MAX (wavelengths), got {uv_range}",
+                         param="uv_range")
     uv_min, uv_max = (float(x) for x in uv_range)
     if not 0 <= uv_min < uv_max:
-        raise InputError(f"--uv-range {uv_min:g},{uv_max:g}: empty range; give MIN,MAX "
-                         "with 0 <= MIN < MAX (wavelengths)")
+        raise InputError(f"uv_range {uv_min:g},{uv_max:g}: empty range; give MIN,MAX "
+                         "with 0 <= MIN < MAX (wavelengths)", param="uv_range")
     return uv_min, uv_max
 
 
@@ -145,21 +154,22 @@ def _outputs(output, columns: list[str], image: bool, overwrite: bool) -> list[P
         raise InputError("no column given")
     for name in columns:
         if columns.count(name) > 1:
-            raise InputError(f"column {name} is given twice; give each --column once")
+            raise InputError(f"column {name} is given twice; give each column once",
+                             param="column")
     if output is None:
         return []
     given = [os.fspath(output)] if isinstance(output, (str, os.PathLike)) else [
         os.fspath(p) for p in output]
     want = 1 if image else len(columns)
     if len(given) != want:
-        raise InputError(f"--image makes one uv cube but {len(given)} -o/--output are given; "
-                         "give one" if image else f"{len(columns)} --column but {len(given)} "
-                         "-o/--output given: give one -o per --column, in the same order")
+        raise InputError(f"image makes one uv cube but {len(given)} outputs are given; "
+                         "give one" if image else f"{len(columns)} columns but {len(given)} "
+                         "outputs given: give one output per column, in the same order")
     seen = set()
     for text in given:
         path = Path(text)
         if path.resolve() in seen:
-            raise InputError(f"-o {text} is given twice: give each --column its own output")
+            raise InputError(f"output {text} is given twice: give each column its own output")
         seen.add(path.resolve())
         refuse_existing(path, overwrite)
     return [Path(text) for text in given]
@@ -187,21 +197,22 @@ def _check_epsilon(epsilon: float) -> None:
     from ducc0.wgridder import vis2dirty
 
     if not (math.isfinite(epsilon) and 0 < epsilon < 1):
-        raise InputError(f"--epsilon must be a relative accuracy between 0 and 1, got "
-                         f"{epsilon:g} (default 1e-6)")
+        raise InputError(f"epsilon must be a relative accuracy between 0 and 1, got "
+                         f"{epsilon:g} (default 1e-6)", param="epsilon")
     try:
         vis2dirty(uvw=np.zeros((1, 3)), freq=np.array([1e8]), vis=np.ones((1, 1), np.complex128),
                   npix_x=16, npix_y=16, pixsize_x=1e-3, pixsize_y=1e-3, epsilon=epsilon,
                   do_wgridding=True)
     except RuntimeError as err:
-        raise InputError(f"--epsilon {epsilon:g}: this ducc0's gridder has no kernel this "
+        raise InputError(f"epsilon {epsilon:g}: this ducc0's gridder has no kernel this "
                          "accurate (its limit is near 2e-14); give a larger value (default "
-                         "1e-6)") from err
+                         "1e-6)", param="epsilon") from err
 
 
-def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple,
+def _plan(ms, columns: list[str], *, field, spw, cell: float, uv: tuple,
           gridder: str, split, epsilon: float, threads: int, chunk_rows) -> _Plan:
     """Check every MS and column (before anything is gridded) and size the uv grid."""
+    paths = [ms] if isinstance(ms, (str, os.PathLike)) else list(ms)
     if not paths:
         raise InputError("no Measurement Set given")
     if gridder not in GRIDDER_DESCRIPTIONS:
@@ -209,7 +220,7 @@ def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple
     if split not in (None, "even-odd", "first-second"):
         raise InputError(f"unknown split {split!r}: use even-odd or first-second")
     if chunk_rows is not None and chunk_rows <= 0:
-        raise InputError("--chunk-rows must be positive")
+        raise InputError("chunk_rows must be positive", param="chunk_rows")
     if gridder == "wgrid":
         _check_epsilon(epsilon)
     if len({Path(p).resolve() for p in paths}) < len(paths):
@@ -230,8 +241,8 @@ def _plan(paths: list, columns: list[str], *, field, spw, cell: float, uv: tuple
         split_times = np.unique(np.concatenate(
             [msio.read_times(i.ms, field_id=i.field_id, ddid=i.ddid) for i in inputs]))
         if split_times.size < 2:
-            raise InputError(f"--split {split} needs at least two time steps, found "
-                             f"{split_times.size}")
+            raise InputError(f"split {split} needs at least two time steps, found "
+                             f"{split_times.size}", param="split")
     spec = Spec(columns=tuple(columns), gridder=gridder, grid=uv_grid, uv_min=uv[0],
                 uv_max=uv[1], epsilon=epsilon, nthreads=threads, split=split,
                 split_times=split_times)
@@ -245,11 +256,11 @@ def _uv_grid(inputs: list, freq: np.ndarray, cell: float, uv: tuple, label: str)
     if b_hi < uv[0] or b_lo > uv[1]:
         raise InputError(f"{label}: no unflagged sample has a baseline in {uv[0]:g}..{uv[1]:g} "
                          f"wavelengths (baselines span {b_lo:.4g}..{b_hi:.4g}); "
-                         "widen --uv-range")
+                         "widen uv_range", param="uv_range")
     uv_grid = make_grid(cell, min(uv[1], b_hi))
     if uv_grid.size > 4096:
         raise InputError(f"the uv grid would be {uv_grid.size}^2 cells per channel; use a "
-                         "larger --cell or a smaller uv maximum")
+                         "larger cell or a smaller uv maximum", param="cell")
     return uv_grid
 
 
@@ -262,14 +273,15 @@ def _run(plan: _Plan, chunk_rows, scheduler, workers, memory_limit, progress) ->
     where = f"field {inp.field_id}, spectral window {inp.spw_id}"
     if stats["rows"] == 0:
         raise InputError(f"{plan.label}: no cross-correlation rows for {where}; choose "
-                         "others with --field, --spw")
+                         "others with field, spw", param=("field", "spw"))
     if stats["unflagged"] == 0:
         raise InputError(f"{plan.label}: all {stats['samples']} samples of {where} are "
-                         "flagged (FLAG/FLAG_ROW/zero weights); choose others with --field, "
-                         "--spw")
+                         "flagged (FLAG/FLAG_ROW/zero weights); choose others with field, "
+                         "spw", param=("field", "spw"))
     if stats["in_range"] == 0:
         raise InputError(f"{plan.label}: no unflagged sample has a baseline in "
-                         f"{spec.uv_min:g}..{spec.uv_max:g} wavelengths; widen --uv-range")
+                         f"{spec.uv_min:g}..{spec.uv_max:g} wavelengths; widen uv_range",
+                         param="uv_range")
     log.info("gridded %d of %d unflagged samples of %s (uv range %g..%g wavelengths; %s)",
              stats["in_range"], stats["unflagged"], ", ".join(spec.columns), spec.uv_min,
              spec.uv_max, scheduler_text)

@@ -1,10 +1,10 @@
-"""uv cubes from FITS image cubes (``msleak grid --image``): reading and metadata.
+"""uv cubes from FITS image cubes (``msleak grid --image``): the files, their units and
+the uvcube product.
 
-Accepted cubes: axes RA---*, DEC--* (square pixels), FREQ (evenly spaced), optional
-STOKES (values 1..4 = I, Q, U, V) and any other axis of length 1. BUNIT ``Jy/beam``
-(needs BMAJ/BMIN or ``beam_fwhm_deg``), ``Jy/pixel``, ``K`` or ``mK``. Each file may hold
-one Stokes parameter (no STOKES axis: ``stokes`` tells which) or several, and all the
-channels or some (per-channel WSClean images are stacked in frequency order). docs/grid.md.
+Accepted cubes (:func:`msleak.io.images.read_image_cube`): BUNIT ``Jy/beam`` (needs
+BMAJ/BMIN or ``beam_fwhm_deg``), ``Jy/pixel``, ``K`` or ``mK``. Each file may hold one
+Stokes parameter (no STOKES axis: ``stokes`` tells which) or several, and all the channels
+or some (per-channel WSClean images are stacked in frequency order). docs/grid.md.
 """
 
 from __future__ import annotations
@@ -20,100 +20,13 @@ import numpy as np
 import xarray as xr
 
 from msleak.errors import InputError
-from msleak.io.fits import check_complete
-from msleak.ps.grid_tasks import uvcube_dataset
+from msleak.io.images import read_image_cube
 from msleak.ps.image import beam_solid_angle, crop_centre, image_to_uv, to_jy_per_pixel
+from msleak.ps.uvcube import uvcube_dataset
 
-__all__ = ["read_image_cube", "image_paths", "read_images", "grid_image"]
+__all__ = ["image_paths", "read_images", "grid_image"]
 
 log = logging.getLogger(__name__)
-
-_STOKES_CODES = {1: "I", 2: "Q", 3: "U", 4: "V"}
-
-
-def read_image_cube(path: str | os.PathLike, stokes: str | None = None) -> dict:
-    """Read a FITS image cube.
-
-    Returns
-    -------
-    dict with ``cube`` {stokes: (chan, y, x) float array in the file's unit}, ``freq``
-    (chan,) Hz, ``dl_x``, ``dl_y`` (signed pixel increments, rad), ``unit`` (BUNIT),
-    ``beam_sr`` (restoring beam solid angle or None), ``ra_deg``, ``dec_deg`` and
-    ``crpix_x``, ``crpix_y`` (the RA, Dec axes' reference values and pixels).
-    """
-    from astropy.io import fits
-
-    path = os.fspath(path)
-    if not os.path.exists(path):
-        raise InputError(f"{path}: no such image cube")
-    try:
-        with fits.open(path) as hdul:
-            for h in hdul:
-                check_complete(path, h)
-            hdu = next((h for h in hdul if h.data is not None and h.data.ndim >= 3), None)
-            if hdu is None:
-                raise InputError(f"{path}: no image cube (an HDU with 3 or more axes)")
-            header = hdu.header
-            data = np.asarray(hdu.data, dtype=np.float64)
-    except OSError as err:
-        raise InputError(f"{path}: not a readable FITS file ({err})") from err
-    naxis = header["NAXIS"]
-    ctypes = [str(header.get(f"CTYPE{i}", "")).upper() for i in range(1, naxis + 1)]
-
-    def find(prefix):
-        hits = [i for i, c in enumerate(ctypes) if c.startswith(prefix)]
-        return hits[0] if hits else None
-
-    ax_f, ax_x, ax_y, ax_s = find("FREQ"), find("RA"), find("DEC"), find("STOKES")
-    if ax_f is None:
-        raise InputError(f"{path}: image has no FREQ axis (CTYPEs {', '.join(ctypes)}); "
-                         "a spectral cube is needed for the delay transform")
-    if ax_x is None or ax_y is None:
-        raise InputError(f"{path}: image needs RA and DEC axes (CTYPEs {', '.join(ctypes)})")
-
-    def world(ax):
-        n = header[f"NAXIS{ax + 1}"]
-        return (header.get(f"CRVAL{ax + 1}", 0.0)
-                + (np.arange(n) + 1 - header.get(f"CRPIX{ax + 1}", 1.0))
-                * header.get(f"CDELT{ax + 1}", 1.0))
-
-    freq = world(ax_f)
-    if freq.size > 1 and not np.allclose(np.diff(freq), np.diff(freq)[0], rtol=1e-6):
-        raise InputError(f"{path}: FREQ axis is not evenly spaced")
-    # numpy axis order is the reverse of FITS order
-    np_ax = {name: naxis - 1 - ax for name, ax in
-             (("f", ax_f), ("y", ax_y), ("x", ax_x)) + ((("s", ax_s),) if ax_s is not None else ())}
-    others = [a for a in range(naxis) if a not in np_ax.values()]
-    if any(data.shape[a] != 1 for a in others):
-        raise InputError(f"{path}: unexpected non-degenerate axes {ctypes}")
-    order = [np_ax["s"]] if "s" in np_ax else []
-    order += [np_ax["f"], np_ax["y"], np_ax["x"]] + others
-    data = np.transpose(data, order).reshape(
-        ([data.shape[np_ax["s"]]] if "s" in np_ax else [1])
-        + [data.shape[np_ax["f"]], data.shape[np_ax["y"]], data.shape[np_ax["x"]]])
-    if "s" in np_ax:
-        codes = [int(round(c)) for c in world(ax_s)]
-        bad = [c for c in codes if c not in _STOKES_CODES]
-        if bad:
-            raise InputError(f"{path}: STOKES axis values {bad} are not I, Q, U or V (1..4)")
-        labels = [_STOKES_CODES[c] for c in codes]
-        if stokes is not None and len(labels) == 1 and stokes != labels[0]:
-            raise InputError(f"{path}: file holds Stokes {labels[0]}, not {stokes}")
-    else:
-        labels = [stokes or "I"]
-    bmaj, bmin = header.get("BMAJ"), header.get("BMIN")
-    return {
-        "cube": {s: np.nan_to_num(data[i]) for i, s in enumerate(labels)},
-        "freq": freq,
-        "dl_x": math.radians(header.get(f"CDELT{ax_x + 1}")),
-        "dl_y": math.radians(header.get(f"CDELT{ax_y + 1}")),
-        "unit": str(header.get("BUNIT", "")).strip(),
-        "beam_sr": beam_solid_angle(bmaj, bmin) if bmaj and bmin else None,
-        "ra_deg": float(header.get(f"CRVAL{ax_x + 1}", 0.0)),
-        "dec_deg": float(header.get(f"CRVAL{ax_y + 1}", 0.0)),
-        "crpix_x": float(header.get(f"CRPIX{ax_x + 1}", 1.0)),
-        "crpix_y": float(header.get(f"CRPIX{ax_y + 1}", 1.0)),
-    }
 
 
 def image_paths(image: str | os.PathLike | Sequence[str | os.PathLike]) -> list[str]:
@@ -132,7 +45,7 @@ def image_paths(image: str | os.PathLike | Sequence[str | os.PathLike]) -> list[
         if not os.path.exists(text) and glob.has_magic(text):
             found = sorted(glob.glob(text))
             if not found:
-                raise InputError(f"no file matches --image {text!r}")
+                raise InputError(f"no file matches image {text!r}", param="image")
             channels = [p for p in found if not _is_wsclean_mfs(p)]
             if channels and len(channels) < len(found):
                 log.info("--image %r: leaving out %d WSClean MFS image(s) of the whole band",
@@ -188,8 +101,9 @@ def read_images(paths: Sequence[str], stokes: Sequence[str] = (),
         if not _same_pixels(info, ref):
             raise InputError(f"{path}: pixel grid (size, increments, reference pixel or "
                              f"direction) differs from {paths[0]}'s; give images of one grid")
-        beam_sr = info["beam_sr"] or (beam_solid_angle(beam_fwhm_deg, beam_fwhm_deg)
-                                      if beam_fwhm_deg else None)
+        bmaj, bmin = info["bmaj_deg"], info["bmin_deg"]
+        beam_sr = (beam_solid_angle(bmaj, bmin) if bmaj and bmin else None) or (
+            beam_solid_angle(beam_fwhm_deg, beam_fwhm_deg) if beam_fwhm_deg else None)
         pix_sr = abs(info["dl_x"] * info["dl_y"])
         for s, c in info["cube"].items():
             data = to_jy_per_pixel(c, info["unit"] or "Jy/pixel", info["freq"], pix_sr,
@@ -243,13 +157,14 @@ def grid_image(image: str | os.PathLike | Sequence[str | os.PathLike], *,
     npix = min(shape[-2:])
     if fov_deg is not None:
         if not fov_deg > 0:
-            raise InputError(f"--fov must be positive, got {fov_deg}")
+            raise InputError(f"fov must be positive, got {fov_deg}", param="fov")
         npix = int(round(fov_deg / math.degrees(abs(ref["dl_x"]))))
         if npix < 4:
-            raise InputError(f"--fov {fov_deg} deg is less than 4 pixels")
+            raise InputError(f"fov {fov_deg} deg is less than 4 pixels", param="fov")
         if npix > min(shape[-2:]):
-            raise InputError(f"--fov {fov_deg} deg is larger than the image "
-                             f"({min(shape[-2:]) * math.degrees(abs(ref['dl_x'])):.3g} deg)")
+            raise InputError(f"fov {fov_deg} deg is larger than the image "
+                             f"({min(shape[-2:]) * math.degrees(abs(ref['dl_x'])):.3g} deg)",
+                             param="fov")
     npix -= npix % 2
     uv_min, uv_max = (float(x) for x in uv_range)
     if not (0 <= uv_min < uv_max):
@@ -285,5 +200,6 @@ def _stokes_labels(stokes: str | Sequence[str] | None) -> list[str]:
     items = stokes.split(",") if isinstance(stokes, str) else list(stokes)
     labels = [str(x).strip().upper() for x in items]
     if any(label not in ("I", "Q", "U", "V") for label in labels):
-        raise InputError(f"--stokes {stokes!r}: use I, Q, U or V, comma separated")
+        raise InputError(f"stokes {stokes!r}: use I, Q, U or V, comma separated",
+                         param="stokes")
     return labels
