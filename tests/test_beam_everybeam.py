@@ -229,7 +229,7 @@ def test_everybeam_without_lofar_tables_names_dipole(make_ms, tmp_path):
     layout.write_text("frame = enu\ntelescope = MYARRAY\nA 0 0 0\nB 100 20 0\nC -50 80 0\n")
     ms = make_ms("custom.ms", layout=str(layout), stations=None)
     for model in ("everybeam", "everybeam-direct"):
-        with pytest.raises(InputError, match="--beam dipole"):
+        with pytest.raises(InputError, match="`beam='dipole'`"):
             load_beam(model, ms)
 
 

@@ -214,8 +214,8 @@ def test_lofar_array_refusals(tmp_path, small_lofar_ms):
     from msleak.io.ms import read_antennas, read_beam_directions
 
     mwa = build_ms(tmp_path / "mwa.ms")
-    with pytest.raises(BeamUnavailable, match="no LOFAR_ANTENNA_FIELD table .*use `--beam "
-                                              "dipole`"):
+    with pytest.raises(BeamUnavailable, match="no LOFAR_ANTENNA_FIELD table .*use `beam="
+                                              "'dipole'`"):
         read_lofar_array(mwa)
     names = read_antennas(small_lofar_ms).names
     rows = read_lofar_antenna_fields(small_lofar_ms)

@@ -221,7 +221,7 @@ def test_fee_without_a_file_is_refused_in_one_line(mwa_ms, monkeypatch):
         mwa_from_ms(mwa_ms, element_model="fee")
     text = str(err.value)
     assert "\n" not in text
-    for word in ("`--beam-file PATH`", "MWA_BEAM_FILE", "download",
+    for word in ("`beam_file=PATH`", "MWA_BEAM_FILE", "download",
                  "mwa_full_embedded_element_pattern.h5"):
         assert word in text
 

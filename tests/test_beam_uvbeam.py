@@ -307,7 +307,7 @@ def test_power_and_unreadable_files_refused(tmp_path, hera_ms):
     beam.write_beamfits(str(power))
     with pytest.raises(InputError, match="a power beam, not an E-field beam") as err:
         uvbeam_from_ms(hera_ms, beam_file=power)
-    assert "--beam-file" in str(err.value) and "\n" not in str(err.value)
+    assert "`beam_file=PATH`" in str(err.value) and "\n" not in str(err.value)
     junk = tmp_path / "junk.beamfits"
     junk.write_bytes(b"\x00not a beam\x01" * 50)
     with pytest.raises(InputError, match="UVBeam cannot read it") as err:

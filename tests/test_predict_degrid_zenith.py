@@ -28,6 +28,7 @@ from msleak.beam.coords import zenith_j2000
 from msleak.cli import cli
 from msleak.verbs.predict import predict
 from msleak.predict.gridsky import DegridRefused
+from msleak.predict.options import DegridOptions
 
 EPS = 1e-6
 
@@ -203,8 +204,8 @@ def test_auto_sums_only_the_zenith_times_directly(tmp_path, caplog):
 
     with table(f"{ms}/ANTENNA") as t:
         site = t.getcol("POSITION").mean(axis=0)
-    grid = sky_components(sky, channel_freqs(ms), *phase_centre(ms), method="degrid",
-                          site=site).grid
+    grid = sky_components(sky, channel_freqs(ms), *phase_centre(ms),
+                          degrid=DegridOptions("degrid"), site=site).grid
     near = zenith_near(grid, times)
     assert near.sum() == 6
     rows = np.isin(ref["time"].values, times[near])
@@ -274,8 +275,8 @@ def test_the_probe_looks_where_the_zenith_passes(fields, monkeypatch):
         site = t.getcol("POSITION").mean(axis=0)
     with table(str(ms)) as t:
         times = np.unique(t.getcol("TIME"))
-    grid = sky_components(sky, channel_freqs(ms), *phase_centre(ms), method="degrid",
-                          site=site).grid
+    grid = sky_components(sky, channel_freqs(ms), *phase_centre(ms),
+                          degrid=DegridOptions("degrid"), site=site).grid
     ra, dec = zenith_j2000(times, site)
     ra0, dec0 = phase_centre(ms)
     dist = np.arccos(np.sin(dec) * math.sin(dec0)
