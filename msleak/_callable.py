@@ -1,26 +1,45 @@
 """Stage packages that are also their stage's verb.
 
-``msleak.predict`` and ``msleak.leakage`` are packages (``msleak.predict.engine``, ...) and
-the public verbs of the same names: importing a subpackage makes it the attribute of
-``msleak``, so the package itself is made callable and calls the verb.
+``msleak.predict`` and ``msleak.leakage`` are packages of numerics and the names of the
+public verbs (:mod:`msleak.verbs`): importing a subpackage makes it the attribute of
+``msleak``, so the package itself is made callable and calls the verb. The verb is named by
+its dotted path and imported on the first call (or the first look at its help), so a
+computation package never imports the verb layer above it.
 """
 
 from __future__ import annotations
 
+import importlib
 import inspect
 import sys
 import types
-from typing import Callable
 
 
-def make_callable(package: str, verb: Callable) -> None:
-    """Make the already-imported module ``package`` call ``verb`` when called; its help
-    and signature are the verb's (``help(msleak.predict)``)."""
+def _resolve(path):
+    if callable(path):
+        return path
+    module, _, name = path.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def make_callable(package: str, verb: str) -> None:
+    """Make the already-imported module ``package`` call the function ``verb``
+    ("module:function") when called; its help and signature are the verb's
+    (``help(msleak.predict)``)."""
     module = sys.modules[package]
+    own_doc = module.__doc__
 
     class VerbPackage(types.ModuleType):
-        __call__ = staticmethod(verb)
+        def __call__(self, *args, **kwargs):
+            return _resolve(verb)(*args, **kwargs)
 
-    VerbPackage.__doc__ = verb.__doc__
+        @property
+        def __signature__(self):
+            return inspect.signature(_resolve(verb))
+
+        @property
+        def __wrapped__(self):
+            return _resolve(verb)
+
+    VerbPackage.__doc__ = own_doc
     module.__class__ = VerbPackage
-    module.__signature__ = inspect.signature(verb)

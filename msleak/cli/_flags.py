@@ -17,7 +17,10 @@ from msleak.errors import MsleakError
 __all__ = ["ALIASES", "flag_for", "as_flags"]
 
 #: parameter name -> flag, where the flag is not the parameter's name with dashes
-ALIASES: dict[str, str] = {}
+ALIASES: dict[str, str] = {
+    "fov_deg": "--fov", "freq_min_hz": "--freq-min", "chan_width_hz": "--chan-width",
+    "output": "-o/--output",
+}
 
 
 def flag_for(param: str, command: click.Command | None = None) -> str:
