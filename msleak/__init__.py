@@ -17,8 +17,8 @@ __version__ = "0.1.0"
 #: public verb -> "module:function", or the stage package that is callable as the verb
 #: (msleak.predict and msleak.leakage: importing a subpackage makes it msleak's attribute)
 _VERBS = {
-    "simulate": "msleak.telescope.simulate:simulate",
-    "make_sky": "msleak.sky.make:make_sky",
+    "simulate": "msleak.verbs.simulate:simulate",
+    "make_sky": "msleak.verbs.sky:make_sky",
     "beam_maps": "msleak.verbs.beam_maps:beam_maps",
     "predict": "msleak.predict",
     "grid": "msleak.verbs.grid:grid",

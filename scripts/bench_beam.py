@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     from msleak.adapters.beams import load_beam
     from msleak.adapters.everybeam import EveryBeamDirect
     from msleak.io.ms import read_spectral_windows, read_times
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     fovs = {2500: 15.0, 784: 9.0, 256: 4.0}
     with tempfile.TemporaryDirectory(prefix="msleak-bench-beam-") as tmp:

@@ -108,7 +108,7 @@ def _matmul_rate(nst: int, nsrc: int, nchan: int, dtype) -> float:
 
 
 def _simulate(path: Path, hours: float, args) -> None:
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     simulate(path, field=args.field, duration=hours, interval=args.interval, nchan=args.nchan,
              freq_min=150e6, chan_width=195312.5, stations=args.stations,

@@ -39,7 +39,7 @@ def _sky(path: Path, nside: int) -> int:
 
 
 def _ms(work: Path, stations: str, slots: int, nchan: int) -> Path:
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     name = f"s{stations.replace('*', 'x').replace('[', '').replace(']', '')}_t{slots}_c{nchan}.ms"
     path = work / name

@@ -9,7 +9,7 @@ share one beam among sources closer than 60 arcsec).
 
 A sky cube's voxels have tabulated spectra, which one makesourcedb source cannot hold, so
 :func:`predict_cubes` writes one makesourcedb file per channel and sky (the sources
-msleak predict itself reads from the cube, :func:`msleak.io.skymodel.read_sky`) and runs
+msleak predict itself reads from the cube, :func:`msleak.verbs.sky.read_sky`) and runs
 DP3 once per channel on that channel only (``msin.startchan``), predicting every sky of
 the run into its own column (a ``predict, applybeam, msout`` chain per sky).
 
@@ -133,7 +133,8 @@ def predict_cubes(ms: str | os.PathLike, skies: Sequence[tuple[str | os.PathLike
     """
     import casacore.tables as pt
 
-    from msleak.io.skymodel import read_sky, write_skymodel
+    from msleak.io.skymodel import write_skymodel
+    from msleak.verbs.sky import read_sky
 
     ms = Path(ms).resolve()
     with pt.table(str(ms / "FIELD"), ack=False) as t:

@@ -80,7 +80,7 @@ SMALL_MS_PARAMS = dict(field="3c196", duration=4 * 120 / 3600, interval=120.0,
 
 
 def _build(path: Path, **params) -> Path:
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     return simulate(path, **params)
 

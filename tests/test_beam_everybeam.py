@@ -23,7 +23,7 @@ pytest.importorskip("everybeam")
 @pytest.fixture(scope="module")
 def lofar_mss(tmp_path_factory):
     """3C196 and NCP LOFAR MSs (CS001-CS003 HBA0/HBA1, 2 h, 4 channels), built once."""
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     root = tmp_path_factory.mktemp("beam_ms")
     common = dict(duration=2.0, interval=3600.0, freq_min=150e6, nchan=4,

@@ -23,6 +23,7 @@ def _command(name: str) -> click.Command:
      ("beam", "beam_file"),
      "no LOFAR tables: use `--beam dipole` or `--beam-file PATH`; the beam is EveryBeam's"),
     ("the sky is fine", (), "the sky is fine"),
+    ("/data/fov/fov.fits: fov is too wide.", "fov", "/data/fov/fov.fits: --fov is too wide."),
 ])
 def test_parameters_become_flags(message, params, expected):
     assert as_flags(InputError(message, param=params), _command("predict")) == expected

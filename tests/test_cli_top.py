@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from click.testing import CliRunner
 
-import msleak.telescope.simulate as simulate_module
+import msleak.verbs.simulate as simulate_module
 from msleak.cli import cli
 
 

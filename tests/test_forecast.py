@@ -60,7 +60,7 @@ def test_forecast_quick_every_telescope(tmp_path):
     its array's centre, and a rerun skips every step and gives the same table."""
     import casacore.tables as ct
 
-    from msleak.telescope.simulate import telescope_layout
+    from msleak.telescope.observation import telescope_layout
 
     out = tmp_path / "fc"
     result = CliRunner().invoke(cli, ["forecast", str(out), "--quick", "--seeds", "2",

@@ -12,8 +12,8 @@ from msleak.leakage.bootstrap import (_weighted_order_median, _weighted_pareto_m
                                      bootstrap_errors, cell_groups)
 from msleak.leakage.expected import (correlation_factors, sample_error,
                                      window_correlation_length)
-from msleak.leakage.outputs import write_stats_csv, write_stats_md
 from msleak.leakage.stats import pareto_ks
+from msleak.verbs.leakage_files import write_stats_csv, write_stats_md
 
 from test_leakage_helpers import gaussian_voxels, make_ps_dataset
 

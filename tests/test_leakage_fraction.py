@@ -107,10 +107,10 @@ def test_no_power3d_needs_bins():
     rng = np.random.default_rng(5)
     v = gaussian_voxels((4, 12), 1.0, rng)
     ds = make_ps_dataset(0.1 * v, v, with_power3d=False)
-    with pytest.raises(InputError, match="stats-from bins"):
+    with pytest.raises(InputError, match="stats_from bins"):
         leakage_voxels(ds)
     no_mirror = make_ps_dataset(0.1 * v, v, with_mirror=False)
-    with pytest.raises(InputError, match="no 'power3d_P_mirror'.*stats-from bins"):
+    with pytest.raises(InputError, match="no 'power3d_P_mirror'.*stats_from bins"):
         leakage_voxels(no_mirror)
     vox = leakage_voxels(ds, source="bins")
     np.testing.assert_allclose(vox.L, 10.0, rtol=1e-12)

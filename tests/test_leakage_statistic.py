@@ -27,7 +27,7 @@ SYMMETRIC = np.sqrt(2 * (np.sqrt(2) - 1))       # median factor of P_Q + P_U
 
 
 def _ms(path, nchan, chan_width_hz):
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     return simulate(path, field="ncp", duration=1.0, nchan=nchan,
                     chan_width=chan_width_hz, stations="CS*HBA*")

@@ -12,9 +12,10 @@ import msleak
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io.products import history_lines, open_product
-from msleak.leakage import STAT_COLUMNS, leakage
-from msleak.leakage.outputs import estimate_summary
+from msleak.leakage import STAT_COLUMNS
 from msleak.plot.leakage import field_title, input_title
+from msleak.verbs.leakage import leakage
+from msleak.verbs.leakage_files import estimate_summary
 
 from test_leakage_helpers import gaussian_voxels, make_ps_dataset, rotated_leakage, write_ps
 
@@ -130,7 +131,7 @@ def test_existing_output_refused_before_any_work(inputs, tmp_path):
     assert r.exit_code == 0, r.output + r.stderr
     res = open_product(out / "leakage.h5", "leakage")
     assert float(res["median"][0]) == pytest.approx(100 * EPS["b"], rel=1e-9)
-    with pytest.raises(InputError, match="pass --overwrite"):
+    with pytest.raises(InputError, match="pass overwrite"):
         leakage(inputs["a"], output=out)
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="exists and is not a directory"):
@@ -138,14 +139,14 @@ def test_existing_output_refused_before_any_work(inputs, tmp_path):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(labels=["x"]), "1 labels for 2 PS inputs; give one --labels entry per input"),
+    (dict(labels=["x"]), "1 labels for 2 PS inputs; give one label per input"),
     (dict(realisations=[1]), "1 realisations for 2 PS inputs"),
     (dict(labels=["x", "x"]), "labels must be unique within a realisation"),
-    (dict(k_perp_range=(0.3, 0.1)), "--k-perp-range needs 0 <= MIN < MAX, got 0.3,0.1"),
-    (dict(hist_quantile=0.2), "--hist-quantile must be in [0.5, 1], got 0.2"),
-    (dict(expected="OBS"), "give an output directory (-o/--output)"),
+    (dict(k_perp_range=(0.3, 0.1)), "k_perp_range needs 0 <= MIN < MAX, got 0.3,0.1"),
+    (dict(hist_quantile=0.2), "hist_quantile must be in [0.5, 1], got 0.2"),
+    (dict(expected="OBS"), "give them a directory (output)"),
     (dict(expected="OBS", expected_labels=["p", "q"], output="OUT"),
-     "2 --expected-labels for 1 observed PS products"),
+     "2 expected_labels for 1 observed PS products"),
 ])
 def test_verb_errors(inputs, tmp_path, kwargs, message):
     kwargs = {k: (inputs["obs"] if v == "OBS" else tmp_path / "o" if v == "OUT" else v)

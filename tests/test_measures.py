@@ -106,7 +106,7 @@ def test_predict_twice_in_one_process_is_bit_identical(tmp_path):
     from ms_helpers import phase_centre, write_sky
     from msleak.io.ms import read_times
     from msleak.verbs.predict import predict
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     ms = simulate(tmp_path / "a.ms", field="3c196", stations="CS00[1-4]HBA*", duration=2.0,
                   interval=120.0, nchan=4, freq_min=150e6, chan_width=195312.5)

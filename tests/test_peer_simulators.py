@@ -26,7 +26,7 @@ import peer_sim as ps  # noqa: E402
 from ms_helpers import C  # noqa: E402
 from msleak.verbs.predict import predict  # noqa: E402
 from msleak.sky.sources import PointSources  # noqa: E402
-from msleak.telescope.simulate import simulate  # noqa: E402
+from msleak.verbs.simulate import simulate  # noqa: E402
 
 #: Agreement required, as a fraction of the largest |visibility|. What separates msleak
 #: from the peers (docs/conventions.md, "Peer simulators"): their fringes use each

@@ -18,7 +18,7 @@ from ms_helpers import channel_freqs, phase_centre, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.verbs.predict import predict
-from msleak.sky.make import make_sky
+from msleak.verbs.sky import make_sky
 
 NTIME = 3
 

@@ -39,7 +39,7 @@ MS_PARAMS = dict(duration=4 * 120 / 3600, interval=120.0, freq_min=150e6, nchan=
 @pytest.fixture(scope="module")
 def mss(tmp_path_factory):
     """Two tiny LOFAR MSs (6 antennas, 4 times, 4 channels), 3C196 and the NCP."""
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     root = tmp_path_factory.mktemp("degrid")
     # 3C196 two hours before transit: the zenith 20 deg away, outside the padded field

@@ -51,7 +51,7 @@ def fields(tmp_path_factory):
     telescope and one sky per field, made on first use."""
     from msleak.sky.cube import convert_units
     from msleak.sky.foreground import generate_foreground_cube
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     root = tmp_path_factory.mktemp("zenith")
     made: dict = {}
@@ -178,7 +178,7 @@ def test_auto_sums_only_the_zenith_times_directly(tmp_path, caplog):
     from msleak.predict.gridsky import zenith_near
     from msleak.sky.cube import convert_units
     from msleak.sky.foreground import generate_foreground_cube
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     ms = simulate(tmp_path / "long.ms", phase_centre=(210.0, 55.0), duration=4.0,
                   interval=1200.0, nchan=4, stations="CS00[1-3]HBA*")

@@ -65,7 +65,7 @@ def _write_sky(path, ra0, dec0, shift=0.0):
 @pytest.fixture(scope="module")
 def kill_env(tmp_path_factory):
     from msleak.verbs import predict as engine
-    from msleak.telescope.simulate import simulate
+    from msleak.verbs.simulate import simulate
 
     root = tmp_path_factory.mktemp("kill")
     master = simulate(root / "master.ms", field="3c196", freq_min=150e6, nchan=4,

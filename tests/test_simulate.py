@@ -310,9 +310,9 @@ def test_verb_equals_cli_and_writes_history(tmp_path):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(phase_centre=(10.0,)), "--phase-centre needs RA_DEG,DEC_DEG"),
+    (dict(phase_centre=(10.0,)), "phase_centre needs RA_DEG,DEC_DEG"),
     (dict(field="m31"), "unknown field 'm31'"),
-    (dict(nchan=2.5), "--nchan must be a positive integer"),
+    (dict(nchan=2.5), "nchan must be a positive integer"),
 ])
 def test_verb_errors(tmp_path, kwargs, message):
     import msleak

@@ -15,7 +15,7 @@ from msleak.beam.ska_low import SkaLowBeam
 from msleak.errors import InputError
 from msleak.io.ms import read_fields, read_history, read_times
 from msleak.io.phased_array import read_phased_array
-from msleak.telescope.simulate import simulate
+from msleak.verbs.simulate import simulate
 
 STATIONS = "S00[0-3]"
 

@@ -140,3 +140,20 @@ def test_errors_exit_2(tmp_path, cube_path, case, match):
     assert match in res.output
     msg = [line for line in res.output.splitlines() if "rror" in line]
     assert len(msg) >= 1
+
+
+def test_physics_options_are_the_foreground_parameters():
+    """One option per ForegroundParams field, under the field's name, with its default:
+    the command and make_sky(params=...) generate the same cube by default."""
+    from dataclasses import fields
+
+    import click
+
+    from msleak.sky.foreground import ForegroundParams
+
+    options = {p.name: p for p in cli.get_command(click.Context(cli), "sky").params}
+    for f in fields(ForegroundParams):
+        option = options[f.name]
+        default = option.type_cast_value(click.Context(cli), option.default)
+        expected = f.default
+        assert (tuple(default) if isinstance(expected, tuple) else default) == expected, f.name

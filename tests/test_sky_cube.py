@@ -178,7 +178,7 @@ def test_at_frequencies_tabulated():
     got = src.at_frequencies(f[[2, 0]] * (1 + 1e-8))
     assert np.array_equal(got[:, 0, 1], cube.data[0, 2].ravel())
     assert np.array_equal(got[:, 1, 2], cube.data[1, 0].ravel())
-    with pytest.raises(InputError, match="--interpolate-frequency"):
+    with pytest.raises(InputError, match="interpolate_frequency"):
         src.at_frequencies([f[0] + 1000.0])
     mid = 0.25 * f[1] + 0.75 * f[2]
     lin = src.at_frequencies([mid], interpolate=True)[:, 0, 1]

@@ -12,10 +12,12 @@ import msleak
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io.fits import cube_from_dataset, dataset_from_cube, read_cube, write_cube
-from msleak.io.skymodel import read_sky, read_skymodel
-from msleak.sky.make import make_sky, select_skymodel, skymodel_paths
+from msleak.io.skymodel import read_skymodel
+from msleak.sky.foreground import ForegroundParams
+from msleak.verbs.sky import make_sky, read_sky, select_skymodel, skymodel_paths
 
-SMALL = dict(npix=8, nchan=4, ncells_los=16, seed=3)
+SMALL = dict(npix=8, nchan=4, seed=3, params=ForegroundParams(ncells_los=16))
+STEEP = dict(SMALL, params=ForegroundParams(ncells_los=16, b_index=3.2))
 SMALL_CLI = ["--npix", "8", "--nchan", "4", "--ncells-los", "16", "--seed", "3"]
 
 
@@ -34,7 +36,7 @@ def made(tmp_path_factory):
     d = tmp_path_factory.mktemp("sky")
     res = run(d / "cli.fits", *SMALL_CLI, "--phase-centre", "123.4,48.2", "--b-index", "3.2")
     assert res.exit_code == 0, res.output
-    ds = make_sky(d / "api.fits", phase_centre=(123.4, 48.2), b_index=3.2, **SMALL)
+    ds = make_sky(d / "api.fits", phase_centre=(123.4, 48.2), **STEEP)
     return d, ds
 
 
@@ -59,7 +61,7 @@ def test_returned_dataset_is_the_file(made):
     assert header["MSLEAK SEED"] == 3 and header["MSLEAK P_B_INDEX"] == 3.2
     assert header["CRVAL1"] == 123.4 and header["CRVAL2"] == 48.2
     # return only: the same numbers
-    again = make_sky(phase_centre=(123.4, 48.2), b_index=3.2, **SMALL)
+    again = make_sky(phase_centre=(123.4, 48.2), **STEEP)
     xr.testing.assert_identical(again, ds)
 
 
@@ -88,7 +90,8 @@ def test_crop_of_a_dataset_equals_the_cli_crop(made, tmp_path):
 def test_coordinates_are_sin_offsets_and_directions():
     # NCP, SIN: x = l = -(i - ref) pixel, y = m; ra = atan2(l, -m), dec = acos(|(l, m)|)
     npix, pix = 6, 2.0
-    ds = make_sky(npix=npix, fov=npix * pix, nchan=1, ncells_los=4, seed=1)
+    ds = make_sky(npix=npix, fov=npix * pix, nchan=1, params=ForegroundParams(ncells_los=4),
+                  seed=1)
     ref = (npix - 1) / 2
     l_deg = -(np.arange(npix) - ref) * pix
     m_deg = (np.arange(npix) - ref) * pix
@@ -134,13 +137,13 @@ def test_skymodel_export_and_selection(made, tmp_path):
 def test_errors(made, tmp_path):
     d, ds = made
     cases = [
-        (lambda: make_sky(crop=ds, nchan=3), "--nchan is a generation option"),
+        (lambda: make_sky(crop=ds, nchan=3), "nchan is a generation option"),
         (lambda: make_sky(d / "api.fits", **SMALL), "exists; choose another name or pass "
                                                     "--overwrite"),
         (lambda: make_sky(phase_centre=(10, 95), **SMALL), "declination 95.0 deg is outside"),
-        (lambda: make_sky(crop=ds, fov=4, crop_npix=4), "give --fov or --crop-npix, not both"),
+        (lambda: make_sky(crop=ds, fov=4, crop_npix=4), "give fov or crop_npix, not both"),
         (lambda: make_sky(crop=ds, skymodel=tmp_path / "x.skymodel", skymodel_channel=4),
-         "--skymodel-channel 4 is outside 0..3"),
+         "skymodel_channel 4 is outside 0..3"),
         (lambda: cube_from_dataset(ds.drop_attrs()), "no fits_header attribute"),
         (lambda: cube_from_dataset(ds.drop_vars(["Q", "U"])), "no Stokes variable"),
         (lambda: cube_from_dataset(ds.where(ds.x > 0)), "NaN or infinite values"),
@@ -150,7 +153,7 @@ def test_errors(made, tmp_path):
     model.write_text("format = Name, Type, Ra, Dec, I\na, POINT, 00:00:00, +89.00.00, 1\n")
     cases += [
         (lambda: make_sky(crop=model), "is not a FITS cube"),
-        (lambda: read_sky(model, fov_deg=4), "--fov on a makesourcedb sky needs --phase-centre"),
+        (lambda: read_sky(model, fov_deg=4), "fov_deg on a makesourcedb sky needs phase_centre"),
     ]
     for call, match in cases:
         with pytest.raises(InputError, match=match.replace("(", r"\(").replace(".", r"\.")):

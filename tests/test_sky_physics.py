@@ -136,9 +136,9 @@ def test_calibration_targets_default_physics():
 @pytest.mark.parametrize("kw,match", [
     (dict(depth_pc=-1.0), "depth"),
     (dict(ncells_los=1), "ncells"),
-    (dict(electron_index=0.5), "electron-index"),
-    (dict(b_random_rms_ug=-1.0), "b-random"),
-    (dict(p_rms_k=0.0), "p-rms"),
+    (dict(electron_index=0.5), "electron_index"),
+    (dict(b_random_rms_ug=-1.0), "b_random"),
+    (dict(p_rms_k=0.0), "p_rms"),
 ])
 def test_bad_parameters(kw, match):
     with pytest.raises(InputError, match=match):

@@ -16,7 +16,7 @@ from msleak.adapters.beams import beam_options
 from msleak.beam.dipole import DipoleBeam
 from msleak.beam.mueller import jones_to_mueller
 from msleak.errors import InputError
-from msleak.telescope.simulate import simulate
+from msleak.verbs.simulate import simulate
 
 
 def _col(ms, name, table=""):

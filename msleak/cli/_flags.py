@@ -17,7 +17,10 @@ from msleak.errors import MsleakError
 __all__ = ["ALIASES", "flag_for", "as_flags"]
 
 #: parameter name -> flag, where the flag is not the parameter's name with dashes
-ALIASES: dict[str, str] = {}
+ALIASES: dict[str, str] = {
+    "fov_deg": "--fov", "freq_min_hz": "--freq-min", "chan_width_hz": "--chan-width",
+    "output": "-o/--output",
+}
 
 
 def flag_for(param: str, command: click.Command | None = None) -> str:
@@ -36,7 +39,8 @@ def flag_for(param: str, command: click.Command | None = None) -> str:
 def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
     """``err``'s message with each parameter it names written as its flag. A quoted setting
     `` `beam='dipole'` `` becomes `` `--beam dipole` ``; a quoted name (`` `sky` ``) becomes
-    the flag; a parameter quoted neither way is replaced wherever it stands as a word."""
+    the flag; a parameter quoted neither way is replaced wherever it stands as a word (not
+    as part of a path or file name)."""
     text = str(err)
     for param in getattr(err, "params", ()):
         flag = flag_for(param, command)
@@ -47,5 +51,5 @@ def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
         if quoted in text:
             text = text.replace(quoted, flag)
         elif not settings:
-            text = re.sub(rf"(?<![\w\-`']){re.escape(param)}(?![\w\-])", flag, text)
+            text = re.sub(rf"(?<![\w\-`'/.]){re.escape(param)}(?![\w\-/]|\.\w)", flag, text)
     return text

@@ -1,5 +1,5 @@
 """``msleak leakage``: fractional leakage maps, statistics, expected leakage, bias correction
-(docs/leakage.md); a thin wrapper over :func:`msleak.leakage.analysis.leakage`."""
+(docs/leakage.md); a thin wrapper over :func:`msleak.verbs.leakage.leakage`."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from typing import get_args
 import click
 
 from msleak.cli._common import FloatList
-from msleak.leakage.analysis import leakage as leakage_verb
 from msleak.leakage.fraction import NegativePolicy, StatsFrom
 from msleak.leakage.observed import ModelMode
-from msleak.leakage.outputs import estimate_summary
+from msleak.verbs.leakage import leakage as leakage_verb
+from msleak.verbs.leakage_files import estimate_summary
 
 __all__ = ["leakage"]
 

@@ -9,8 +9,8 @@ import click
 
 from msleak.cli._common import FloatList
 from msleak.io.ms import ms_summary
-from msleak.telescope import simulate as verb
-from msleak.telescope.simulate import FIELD_PRESETS, TELESCOPES
+from msleak.telescope.observation import FIELD_PRESETS, TELESCOPES
+from msleak.verbs import simulate as verb
 
 log = logging.getLogger(__name__)
 

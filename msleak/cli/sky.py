@@ -8,12 +8,13 @@ from typing import get_args
 import click
 from astropy.io import fits
 
-from msleak.cli._common import FloatList
+from msleak.cli._common import FloatList, physics_options
 from msleak.errors import InputError
 from msleak.io.fits import is_fits
 from msleak.plot.sky import plot_sky
 from msleak.sky.cube import Units
-from msleak.sky.make import make_sky, select_skymodel, skymodel_paths
+from msleak.sky.foreground import ForegroundParams
+from msleak.verbs.sky import make_sky, select_skymodel, skymodel_paths
 
 __all__ = ["sky"]
 
@@ -75,43 +76,7 @@ def _report(ds, out, generated: bool) -> None:
 @click.option("--units", type=click.Choice(get_args(Units)), default=None,
               help="Brightness unit of the written cube [default K; with --crop the input's]. "
                    "Jy/pixel uses S = 2 k_B T Omega_pix / lambda^2.")
-@click.option("--depth-pc", type=float, default=1000.0, show_default=True, metavar="PC",
-              help="Depth of the emitting and rotating slab along the line of sight, pc.")
-@click.option("--ncells-los", type=click.IntRange(2, None), default=100, show_default=True,
-              metavar="N", help="Cells along the line of sight.")
-@click.option("--cell-perp-pc", type=float, default=None, metavar="PC",
-              help="Transverse cell size, pc [default: depth / ncells, cubic cells; smaller values "
-                   "give smoother maps but less Faraday-depth spread across the field].")
-@click.option("--b-regular", type=FloatList(3), default="1.0,1.0,0.2", show_default=True,
-              metavar="BE,BN,BPAR",
-              help="Regular magnetic field: east, north, line-of-sight (towards the observer) "
-                   "components, microgauss.")
-@click.option("--b-random-rms", type=float, default=2.5, show_default=True, metavar="UG",
-              help="rms |B| of the random (turbulent) field, microgauss.")
-@click.option("--b-index", type=float, default=11 / 3, show_default=True, metavar="X",
-              help="3-D power-spectrum index of the random field, P(k) ~ k^-index "
-                   "(11/3: Kolmogorov).")
-@click.option("--solenoidal/--no-solenoidal", default=True, show_default=True,
-              help="Make the random field divergence-free.")
-@click.option("--ne-mean", type=float, default=0.01, show_default=True, metavar="CM-3",
-              help="Mean thermal electron density, cm^-3.")
-@click.option("--ne-sigma", type=float, default=0.5, show_default=True, metavar="X",
-              help="Log-normal width (std of ln n_e) of the thermal electrons.")
-@click.option("--ne-index", type=float, default=11 / 3, show_default=True, metavar="X",
-              help="3-D power-spectrum index of ln n_e.")
-@click.option("--ncr-sigma", type=float, default=0.5, show_default=True, metavar="X",
-              help="Log-normal width of the cosmic-ray electron density.")
-@click.option("--ncr-index", type=float, default=11 / 3, show_default=True, metavar="X",
-              help="3-D power-spectrum index of ln n_CR.")
-@click.option("--electron-index", type=float, default=2.1, show_default=True, metavar="X",
-              help="Cosmic-ray energy index p (N(E) ~ E^-p); brightness T ~ nu^-(p+3)/2.")
-@click.option("--outer-scale-pc", type=float, default=None, metavar="PC",
-              help="Outer scale of all random fields, pc [default: none, pure power laws].")
-@click.option("--p-rms", type=float, default=3.0, show_default=True, metavar="K",
-              help="rms polarized brightness |P| over the map at --ref-freq, K (sets the "
-                   "emissivity scale).")
-@click.option("--ref-freq", type=float, default=150e6, show_default=True, metavar="HZ",
-              help="Frequency at which --p-rms holds, Hz.")
+@physics_options
 @click.option("--skymodel", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write the voxels as makesourcedb point sources (Jy) for DP3: one file "
                    "per channel, NAME_chNNN.skymodel, unless --skymodel-channel is given.")
@@ -121,18 +86,17 @@ def _report(ds, out, generated: bool) -> None:
               default=None, help="Figure, format from the suffix (.png, .pdf): Q and U "
                                  "slices, one pixel's spectrum and the angular power "
                                  "spectrum of P.")
-@click.option("--plot-channel", type=click.IntRange(0, None), default=0, show_default=True,
-              metavar="N", help="Channel (0-based) of the slices and power spectrum in --plot.")
-@click.option("--plot-pixel", type=FloatList(2), default=None, metavar="X,Y",
+@click.option("--plot-channel", "channel", type=click.IntRange(0, None), default=0,
+              show_default=True, metavar="N",
+              help="Channel (0-based) of the slices and power spectrum in --plot.")
+@click.option("--plot-pixel", "pixel", type=FloatList(2), default=None, metavar="X,Y",
               help="Pixel (0-based x,y indices) whose spectrum --plot shows [default: the "
                    "centre].")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files (cube, "
                                                 "sky models, figure).")
 def sky(out, input_path, fov, crop_npix, npix, freq_min, nchan, chan_width, seed,
-        phase_centre, units, depth_pc, ncells_los, cell_perp_pc, b_regular, b_random_rms,
-        b_index, solenoidal, ne_mean, ne_sigma, ne_index, ncr_sigma, ncr_index,
-        electron_index, outer_scale_pc, p_rms, ref_freq, skymodel, skymodel_channel,
-        plot_path, plot_channel, plot_pixel, overwrite):
+        phase_centre, units, skymodel, skymodel_channel, plot_path, channel, pixel, overwrite,
+        **physics):
     """Diffuse polarized Galactic foreground cubes (Q, U) with differential Faraday
     rotation, after Jelic et al. (2008, 2010), written as FITS (RA---SIN, DEC--SIN, FREQ,
     STOKES); or crop / re-centre / convert / export / plot an existing cube.
@@ -157,13 +121,9 @@ def sky(out, input_path, fov, crop_npix, npix, freq_min, nchan, chan_width, seed
         raise InputError(f"{plot_path} exists; choose another name or pass --overwrite")
     ds = make_sky(
         out, fov=fov, npix=npix, freq_min=freq_min, nchan=nchan, chan_width=chan_width,
-        seed=seed, phase_centre=phase_centre, units=units, depth_pc=depth_pc,
-        ncells_los=ncells_los, cell_perp_pc=cell_perp_pc, b_regular=b_regular,
-        b_random_rms=b_random_rms, b_index=b_index, solenoidal=solenoidal, ne_mean=ne_mean,
-        ne_sigma=ne_sigma, ne_index=ne_index, ncr_sigma=ncr_sigma, ncr_index=ncr_index,
-        electron_index=electron_index, outer_scale_pc=outer_scale_pc, p_rms=p_rms,
-        ref_freq=ref_freq, crop=input_path, crop_npix=crop_npix, skymodel=skymodel,
-        skymodel_channel=skymodel_channel, overwrite=overwrite)
+        seed=seed, phase_centre=phase_centre, units=units,
+        params=ForegroundParams(**physics), crop=input_path, crop_npix=crop_npix,
+        skymodel=skymodel, skymodel_channel=skymodel_channel, overwrite=overwrite)
     if out is not None:
         _report(ds, out, generated=input_path is None)
     if skymodel is not None:
@@ -172,6 +132,6 @@ def sky(out, input_path, fov, crop_npix, npix, freq_min, nchan, chan_width, seed
         click.echo(f"wrote {len(targets)} makesourcedb file(s) of {nsrc} sources: "
                    f"{targets[0][1]}{' ...' if len(targets) > 1 else ''}")
     if plot_path is not None:
-        pixel = None if plot_pixel is None else (int(plot_pixel[0]), int(plot_pixel[1]))
-        plot_sky(ds, plot_path, channel=plot_channel, pixel=pixel)
+        pixel = None if pixel is None else (int(pixel[0]), int(pixel[1]))
+        plot_sky(ds, plot_path, channel=channel, pixel=pixel)
         click.echo(f"wrote {plot_path}")

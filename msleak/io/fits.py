@@ -49,7 +49,8 @@ def write_cube(cube: SkyCube, path: str | os.PathLike, *, overwrite: bool = Fals
     """
     path = Path(path)
     if path.exists() and not overwrite:
-        raise InputError(f"{path} exists; choose another name or pass --overwrite")
+        raise InputError(f"{path} exists; choose another name or pass overwrite",
+                         param="overwrite")
     freq = np.asarray(cube.freq, float)
     if freq.size > 1:
         step = np.diff(freq)

@@ -3,8 +3,7 @@
 :func:`read_skymodel` reads a makesourcedb file into
 :class:`~msleak.sky.sources.PointSources` with DP3's semantics (fluxes in Jy, frequencies
 in Hz, RotationMeasure in rad m^-2, angles as casacore reads them); only point sources
-are read. :func:`read_sky` reads any sky predict takes, a FITS cube or a makesourcedb
-file, as point sources, optionally re-centred and cropped to a field of view.
+are read; :func:`write_skymodel` writes point sources as DP3 reads them.
 
 The accepted format, fields and spectral/polarization semantics: docs/sky.md
 ("Point sources for predict", "makesourcedb files").
@@ -23,11 +22,9 @@ from msleak import __version__
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 from msleak.io.angles import format_dec, format_ra, parse_angle
-from msleak.io.fits import is_fits, read_cube
-from msleak.sky.cube import crop, recentre
-from msleak.sky.sources import PointSources, sources_from_cube
+from msleak.sky.sources import PointSources
 
-__all__ = ["read_sky", "read_skymodel", "write_skymodel", "KNOWN_FIELDS"]
+__all__ = ["read_skymodel", "write_skymodel", "KNOWN_FIELDS"]
 
 KNOWN_FIELDS = ("Name", "Type", "RefType", "Ra", "Dec", "I", "Q", "U", "V", "SpectralIndex",
                 "LogarithmicSI", "ReferenceFrequency", "MajorAxis", "MinorAxis",
@@ -132,43 +129,6 @@ def read_skymodel(path: str | os.PathLike) -> PointSources:
     if not rows["name"]:
         raise InputError(f"{path} contains no point sources")
     return _assemble(rows)
-
-
-def read_sky(path: str | os.PathLike, *, fov_deg: float | None = None,
-             phase_centre: tuple[float, float] | None = None) -> PointSources:
-    """Read a sky as point sources: a FITS cube (one per voxel) or a makesourcedb file.
-
-    Parameters
-    ----------
-    path : FITS cube or makesourcedb text file
-    fov_deg : keep the central ``fov_deg`` x ``fov_deg`` (deg): a cube is cropped
-        (:func:`msleak.sky.cube.crop`); a makesourcedb sky keeps the sources with |l| and
-        |m| <= fov / 2 (rad, the half width of a SIN cube of that FoV) about
-        ``phase_centre`` (then required)
-    phase_centre : (RA, Dec) J2000, deg; a cube is first re-centred there
-        (:func:`msleak.sky.cube.recentre`: the grid keeps its (l, m) geometry)
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"sky file {path} does not exist")
-    if path.is_dir():
-        raise InputError(f"sky {path} is a directory, not a FITS cube or makesourcedb file")
-    centre = None if phase_centre is None else tuple(math.radians(a) for a in phase_centre)
-    if is_fits(path):
-        cube = read_cube(path)
-        if centre is not None:
-            cube = recentre(cube, *centre)
-        if fov_deg is not None:
-            cube = crop(cube, fov_deg=fov_deg)
-        return sources_from_cube(cube)
-    sources = read_skymodel(path)
-    if fov_deg is not None:
-        if centre is None:
-            raise InputError("--fov on a makesourcedb sky needs --phase-centre")
-        half = math.radians(fov_deg) / 2
-        l_, m_, n_ = sources.lmn(*centre)
-        sources = sources.select((np.abs(l_) <= half) & (np.abs(m_) <= half) & (n_ > 0))
-    return sources
 
 
 def _read_line(line, lineno, path, fmt, rows):
@@ -340,7 +300,8 @@ def write_skymodel(path: str | os.PathLike, sources: PointSources, *,
     """
     path = Path(path)
     if path.exists() and not overwrite:
-        raise InputError(f"{path} exists; choose another name or pass --overwrite")
+        raise InputError(f"{path} exists; choose another name or pass overwrite",
+                         param="overwrite")
     n = len(sources)
     names = sources.names or tuple(f"{name_prefix}{k:0{max(4, len(str(n - 1)))}d}"
                                    for k in range(n))

@@ -121,13 +121,13 @@ def voxel_power(ds: xr.Dataset, name: str = "PS product") -> tuple[np.ndarray, n
     """
     if "power3d" not in ds.variables:
         raise InputError(f"{name}: has no 'power3d' (unaveraged 3D power); rerun "
-                         "`msleak ps`, or pass --stats-from bins")
+                         "`msleak ps`, or pass stats_from bins", param="stats_from")
     p_i = stokes_power(ds, "power3d", "I", name).transpose("delay3d", "cell").values
     p_p = stokes_power(ds, "power3d", "P", name).transpose("delay3d", "cell").values
     if "power3d_P_mirror" not in ds.variables:
         raise InputError(f"{name}: has no 'power3d_P_mirror' (P power of the mirrored voxels "
                          "(-u, -tau)); rerun `msleak ps` on its delay cube, or pass "
-                         "--stats-from bins")
+                         "stats_from bins", param="stats_from")
     p_m = ds["power3d_P_mirror"].transpose("delay3d", "cell").values
     return np.stack([p_i, p_i]), np.stack([p_p, p_m])
 

@@ -56,11 +56,13 @@ def _leakage_model(result: xr.Dataset, obs: xr.Dataset, i_obs: int, n_obs: int,
     if mode == "auto":
         mode = "map" if grid_ok else ("median" if j is not None else "field")
     if mode in ("map", "median") and j is None:
-        raise InputError(f"--expected-model {mode} pairs observed PS i with model input i: "
-                         f"give {n_in} observed PS (got {n_obs}) or use --expected-model field")
+        raise InputError(f"expected_model {mode} pairs observed PS i with model input i: "
+                         f"give {n_in} observed PS (got {n_obs}) or use expected_model field",
+                         param="expected_model")
     if mode == "map" and not grid_ok:
         raise InputError(f"{name}: its (k_par, k_perp) grid differs from the model input "
-                         f"{result['label'].values[j]!r}; use --expected-model median or field")
+                         f"{result['label'].values[j]!r}; use expected_model median or field",
+                         param="expected_model")
     filled = np.zeros(shape, dtype=np.int8)
     if mode == "field":
         scalar = float(result.attrs["field_estimate"])

@@ -33,10 +33,10 @@ def plot_sky(ds: xr.Dataset, path, *, channel: int = 0,
     """
     nchan, ny, nx = ds.sizes["freq"], ds.sizes["y"], ds.sizes["x"]
     if not 0 <= channel < nchan:
-        raise InputError(f"--plot-channel {channel} is outside 0..{nchan - 1}")
+        raise InputError(f"channel {channel} is outside 0..{nchan - 1}", param="channel")
     px, py = (nx // 2, ny // 2) if pixel is None else pixel
     if not (0 <= px < nx and 0 <= py < ny):
-        raise InputError(f"--plot-pixel {px},{py} is outside the {nx}x{ny} grid")
+        raise InputError(f"pixel {px},{py} is outside the {nx}x{ny} grid", param="pixel")
     zero = np.zeros((nchan, ny, nx))
     q, u = (ds[s].transpose("freq", "y", "x").values if s in ds else zero for s in "QU")
     unit = ds.attrs["units"]

@@ -149,7 +149,8 @@ def pixel_directions(wcs, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarra
     ra, dec = np.radians(ra), np.radians(dec)
     if not (np.all(np.isfinite(ra)) and np.all(np.isfinite(dec))):
         raise InputError("some cube pixels fall outside the projection (beyond the "
-                         "horizon of the SIN grid?); crop the cube with --fov")
+                         "horizon of the SIN grid?); crop the cube with a smaller fov",
+                         param="fov")
     return np.mod(ra, 2 * np.pi), dec
 
 
@@ -173,7 +174,7 @@ def pixel_solid_angle(wcs, shape: tuple[int, int]) -> np.ndarray:
     omega = np.linalg.norm(np.cross(dsx, dsy, axis=0), axis=0) / (2 * h) ** 2
     if not np.all(np.isfinite(omega)):
         raise InputError("pixel solid angles are undefined at the edge of the projection; "
-                         "crop the cube with --fov")
+                         "crop the cube with a smaller fov", param="fov")
     return omega
 
 
@@ -225,7 +226,8 @@ def crop_npix_for_fov(fov_deg: float, pixel_deg: float, npix: int) -> int:
         If the FoV is larger than the cube or smaller than one pixel.
     """
     if not (fov_deg > 0 and math.isfinite(fov_deg)):
-        raise InputError(f"--fov must be a positive number of degrees, got {fov_deg}")
+        raise InputError(f"fov_deg must be a positive number of degrees, got {fov_deg}",
+                         param="fov_deg")
     full = npix * pixel_deg
     if fov_deg > full * (1 + 1e-6):
         raise InputError(f"field of view {fov_deg:g} deg is larger than the cube "
@@ -297,7 +299,8 @@ def y_axis_position_angle(wcs, shape: tuple[int, int], h: float = 1e-3) -> np.nd
     psi = np.arctan2(np.sum(t * east, axis=0), np.sum(t * north, axis=0))
     if not np.all(np.isfinite(psi)):
         raise InputError("the polarization frame is undefined at some pixels (beyond the "
-                         "projection's horizon?); crop the cube with --fov")
+                         "projection's horizon?); crop the cube with a smaller fov",
+                         param="fov")
     return psi
 
 

@@ -56,25 +56,30 @@ class ForegroundParams:
     p_rms_k: float = 3.0                 #: rms |P| at ref_freq_hz, K
     ref_freq_hz: float = 150e6           #: normalisation frequency, Hz
 
+    def __post_init__(self):
+        object.__setattr__(self, "b_regular_ug", tuple(self.b_regular_ug))
+
     def validate(self) -> None:
         """Raise :class:`InputError` for unphysical values."""
         checks = [
-            (self.depth_pc > 0, "--depth-pc must be > 0"),
-            (self.ncells_los >= 2, "--ncells-los must be >= 2"),
-            (self.cell_perp_pc is None or self.cell_perp_pc > 0, "--cell-perp-pc must be > 0"),
-            (len(self.b_regular_ug) == 3, "--b-regular needs 3 components"),
-            (self.b_random_rms_ug >= 0, "--b-random-rms must be >= 0"),
-            (self.ne_mean_cm3 >= 0, "--ne-mean must be >= 0"),
-            (self.ne_sigma_ln >= 0 and self.ncr_sigma_ln >= 0, "log-normal widths must be >= 0"),
-            (self.electron_index > 1, "--electron-index must be > 1"),
+            (self.depth_pc > 0, "depth_pc must be > 0", "depth_pc"),
+            (self.ncells_los >= 2, "ncells_los must be >= 2", "ncells_los"),
+            (self.cell_perp_pc is None or self.cell_perp_pc > 0, "cell_perp_pc must be > 0",
+             "cell_perp_pc"),
+            (len(self.b_regular_ug) == 3, "b_regular_ug needs 3 components", "b_regular_ug"),
+            (self.b_random_rms_ug >= 0, "b_random_rms_ug must be >= 0", "b_random_rms_ug"),
+            (self.ne_mean_cm3 >= 0, "ne_mean_cm3 must be >= 0", "ne_mean_cm3"),
+            (self.ne_sigma_ln >= 0 and self.ncr_sigma_ln >= 0, "log-normal widths must be >= 0",
+             ()),
+            (self.electron_index > 1, "electron_index must be > 1", "electron_index"),
             (self.outer_scale_pc is None or self.outer_scale_pc > 0,
-             "--outer-scale-pc must be > 0"),
-            (self.p_rms_k > 0, "--p-rms must be > 0"),
-            (self.ref_freq_hz > 0, "--ref-freq must be > 0"),
+             "outer_scale_pc must be > 0", "outer_scale_pc"),
+            (self.p_rms_k > 0, "p_rms_k must be > 0", "p_rms_k"),
+            (self.ref_freq_hz > 0, "ref_freq_hz must be > 0", "ref_freq_hz"),
         ]
-        for ok, msg in checks:
+        for ok, msg, param in checks:
             if not ok:
-                raise InputError(msg)
+                raise InputError(msg, param=param)
         values = [self.depth_pc, self.b_random_rms_ug, self.ne_mean_cm3, self.p_rms_k,
                   self.b_index, self.ne_index, self.ncr_index, *self.b_regular_ug]
         if not all(math.isfinite(float(v)) for v in values):
@@ -121,7 +126,7 @@ def build_box(params: ForegroundParams, npix: int, seed: int | None = None
     """
     params.validate()
     if npix < 2:
-        raise InputError(f"--npix must be >= 2, got {npix}")
+        raise InputError(f"npix must be >= 2, got {npix}", param="npix")
     nz = int(params.ncells_los)
     dz = params.depth_pc / nz
     dperp = params.cell_perp_pc if params.cell_perp_pc is not None else dz
@@ -159,7 +164,8 @@ def build_box(params: ForegroundParams, npix: int, seed: int | None = None
 def channel_frequencies(freq_min_hz: float, nchan: int, chan_width_hz: float) -> np.ndarray:
     """Channel centres: channel i at freq_min + i * width (Hz), as ``msleak simulate``."""
     if not (freq_min_hz > 0 and chan_width_hz > 0 and nchan >= 1):
-        raise InputError("--freq-min and --chan-width must be > 0 and --nchan >= 1")
+        raise InputError("freq_min_hz and chan_width_hz must be > 0 and nchan >= 1",
+                         param=("freq_min_hz", "chan_width_hz", "nchan"))
     return freq_min_hz + np.arange(int(nchan)) * chan_width_hz
 
 
@@ -187,7 +193,8 @@ def generate_foreground_cube(*, npix: int = 50, fov_deg: float = 15.0,
     """
     params = params or ForegroundParams()
     if not (fov_deg > 0 and math.isfinite(fov_deg)) or fov_deg >= 180:
-        raise InputError(f"--fov must be between 0 and 180 deg, got {fov_deg}")
+        raise InputError(f"fov_deg must be between 0 and 180 deg, got {fov_deg}",
+                         param="fov_deg")
     freq = channel_frequencies(freq_min_hz, nchan, chan_width_hz)
     box, entropy = build_box(params, int(npix), seed)
     beta = params.beta
@@ -205,8 +212,8 @@ def generate_foreground_cube(*, npix: int = 50, fov_deg: float = 15.0,
     data = np.stack([pcube.real, pcube.imag])
     if not np.all(np.isfinite(data)):
         raise InputError("the foreground parameters overflow (non-finite brightness, e.g. an "
-                         "extreme --electron-index over the band); use physically sensible "
-                         "values")
+                         "extreme electron_index over the band); use physically sensible "
+                         "values", param="electron_index")
     phi_total = box.faraday_depth()[-1]
     phi_all = faraday_depth_near_face(box.dphi) + 0.5 * box.dphi
     ra0, dec0 = phase_centre

@@ -202,7 +202,7 @@ class PointSources:
                 raise InputError(
                     f"frequency {f[k] / 1e6:.6f} MHz has no sky channel within rtol={rtol:g} "
                     f"(nearest {fs_sorted[near[k]] / 1e6:.6f} MHz); make the sky on the MS "
-                    "channels or pass --interpolate-frequency")
+                    "channels or pass interpolate_frequency", param="interpolate_frequency")
             return np.ascontiguousarray(self.stokes[:, order[near], :], dtype=float)
         if np.any(f < fs_sorted[0] * (1 - rtol)) or np.any(f > fs_sorted[-1] * (1 + rtol)):
             raise InputError(f"frequencies {f.min() / 1e6:.6f}-{f.max() / 1e6:.6f} MHz are "

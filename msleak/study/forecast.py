@@ -25,7 +25,7 @@ from msleak.plot.forecast import plot_forecast
 from msleak.study.steps import Step, StepRunner, predict_precision
 from msleak.telescope.hera_mwa import HERA_DISH_DIAMETER_M, MWA_TILE_SIZE_M
 from msleak.telescope.layouts import HBA_FIELD_DIAMETER
-from msleak.telescope.simulate import TELESCOPES, telescope_layout
+from msleak.telescope.observation import TELESCOPES, telescope_layout
 from msleak.telescope.ska_low import STATION_DIAMETER_M
 
 __all__ = ["Setup", "SETUPS", "ForecastConfig", "forecast_steps", "run_forecast"]

@@ -2,7 +2,7 @@
 
 A :class:`Layout` holds station names and ITRF positions (m); for LOFAR HBA it also
 carries the per-field data EveryBeam needs (:class:`FieldLayout`), which
-:mod:`msleak.telescope.ms_create` writes into the LOFAR subtables.
+:mod:`msleak.io.ms_create` writes into the LOFAR subtables.
 :func:`lofar_hba_core` gives the LOFAR HBA core, :func:`read_layout_file` reads a
 ``--layout`` file (ITRF, or ENU about a reference position via :func:`enu_to_itrf`).
 
@@ -74,8 +74,9 @@ class Layout:
         keep = [i for i, n in enumerate(self.names)
                 if any(fnmatch.fnmatchcase(n, p.strip()) for p in pattern.split(","))]
         if len(keep) < 2:
-            raise InputError(f"--stations {pattern!r} selects {len(keep)} station(s) of "
-                             f"{what} ({self.names[0]}..{self.names[-1]}); need at least two")
+            raise InputError(f"stations {pattern!r} selects {len(keep)} station(s) of "
+                             f"{what} ({self.names[0]}..{self.names[-1]}); need at least two",
+                             param="stations")
         return Layout(names=[self.names[i] for i in keep], positions=self.positions[keep],
                       diameters=self.diameters[keep], telescope=self.telescope,
                       fields=[self.fields[i] for i in keep] if self.fields else [])
@@ -141,8 +142,8 @@ def lofar_hba_core(pattern: str = "CS*HBA*") -> Layout:
     patterns = [p.strip() for p in pattern.split(",") if p.strip()]
     names = [n for n in all_names if any(fnmatch.fnmatchcase(n, p.upper()) for p in patterns)]
     if not names:
-        raise InputError(f"no LOFAR HBA core field matches --stations {pattern!r} "
-                         f"(fields are CS001HBA0 ... CS501HBA1)")
+        raise InputError(f"no LOFAR HBA core field matches stations {pattern!r} "
+                         f"(fields are CS001HBA0 ... CS501HBA1)", param="stations")
     fields = []
     for name in names:
         centre = np.asarray(db.phase_centres[name], dtype=float)

@@ -1,5 +1,5 @@
-"""The files of ``msleak leakage`` (docs/leakage.md "Outputs"): tables, products and
-figures of a leakage result."""
+"""The files of the verb :func:`msleak.leakage` (docs/leakage.md "Outputs"): tables,
+products and figures of a leakage result."""
 
 from __future__ import annotations
 
@@ -14,17 +14,12 @@ import xarray as xr
 
 from msleak.errors import InputError
 from msleak.io.products import history_lines, save_product
+from msleak.leakage.analysis import STAT_COLUMNS
 from msleak.plot import leakage as plots
 
-__all__ = ["STAT_COLUMNS", "OUTPUT_FILES", "write_leakage", "refuse_existing",
+__all__ = ["OUTPUT_FILES", "write_leakage", "refuse_existing",
            "write_stats_csv", "write_estimates_csv", "write_stats_md", "estimate_summary",
            "default_labels"]
-
-#: per-input statistics, in the order of stats.csv (percent unless n_* or ks_*)
-STAT_COLUMNS = ("mean", "median", "std", "peak", "pareto_median", "pareto_median_err",
-                "pareto_median_hist", "peak_bin_width", "n_voxels", "n_masked",
-                "median_err", "mean_err", "pareto_median_err_iid", "ks_d", "ks_p",
-                "ks_p_eff", "n_eff", "n_groups")
 
 #: the files that make a directory hold leakage products
 OUTPUT_FILES = ("leakage.h5", "stats.csv", "estimates.csv", "stats.md")
@@ -181,12 +176,12 @@ def refuse_existing(output: str | os.PathLike, overwrite: bool) -> None:
     ``overwrite``)."""
     output = Path(output)
     if output.exists() and not output.is_dir():
-        raise InputError(f"{output} exists and is not a directory; choose another "
-                         "-o/--output")
+        raise InputError(f"{output} exists and is not a directory; choose another output",
+                         param="output")
     found = [name for name in OUTPUT_FILES if (output / name).exists()]
     if found and not overwrite:
         raise InputError(f"{output} holds leakage products ({', '.join(found)}); choose "
-                         "another -o/--output or pass --overwrite")
+                         "another output or pass overwrite", param=("output", "overwrite"))
 
 
 def first_realisation(result: xr.Dataset) -> xr.Dataset:

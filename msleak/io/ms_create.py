@@ -1,22 +1,23 @@
-"""Create a Measurement Set from scratch with python-casacore.
+"""Create a Measurement Set from scratch with python-casacore, and fill its main table.
 
 The main table has fixed-shape DATA, FLAG and WEIGHT_SPECTRUM columns in tiled storage
 managers (as DP3 writes them), UVW labelled J2000, and every subtable a reader expects.
-For a LOFAR layout the LOFAR subtables EveryBeam needs are written too:
-LOFAR_ANTENNA_FIELD, LOFAR_ELEMENT_FAILURE, LOFAR_STATION, ANTENNA::LOFAR_PHASE_REFERENCE,
-ANTENNA::LOFAR_STATION_ID and FIELD::LOFAR_TILE_BEAM_DIR.
+For a LOFAR array (``lofar_fields`` given) the LOFAR subtables EveryBeam needs are written
+too: LOFAR_ANTENNA_FIELD, LOFAR_ELEMENT_FAILURE, LOFAR_STATION,
+ANTENNA::LOFAR_PHASE_REFERENCE, ANTENNA::LOFAR_STATION_ID and FIELD::LOFAR_TILE_BEAM_DIR.
 """
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
 from msleak import __version__
-from msleak.telescope.layouts import Layout
 
-__all__ = ["create_ms_tables", "write_lofar_tables"]
+__all__ = ["create_ms_tables", "write_lofar_tables", "main_table", "put_main_rows"]
 
 _TILE_ROWS = 256
 
@@ -56,17 +57,25 @@ def _main_desc(nchan: int):
     return pt.maketabdesc(cols), dminfo
 
 
-def create_ms_tables(path: Path, *, layout: Layout, freq: np.ndarray, chan_width: float,
-                     ra: float, dec: float, field_name: str, time_range: tuple[float, float],
-                     nrows: int) -> None:
+def create_ms_tables(path: Path, *, names: Sequence[str], positions: np.ndarray,
+                     diameters: np.ndarray, telescope: str, freq: np.ndarray,
+                     chan_width: float, ra: float, dec: float, field_name: str,
+                     time_range: tuple[float, float], nrows: int,
+                     lofar_fields: Sequence | None = None) -> None:
     """Create the MS at ``path`` with ``nrows`` empty main-table rows and all subtables.
 
     Parameters
     ----------
+    names, positions, diameters : the stations: names, ITRF positions (nstation, 3) m and
+        dish diameters m
+    telescope : TELESCOPE_NAME of the OBSERVATION table
     freq : (nchan,) channel centres, Hz
     chan_width : channel width, Hz
     ra, dec : J2000 phase centre, rad
     time_range : (start, end) of the observation, MJD seconds
+    lofar_fields : the LOFAR antenna field of every station, records with ``name``,
+        ``position``, ``axes``, ``element_offsets``, ``tile_offsets``, ``tile_rotation``
+        (as :class:`msleak.telescope.layouts.FieldLayout`), or None for another array
     """
     pt = _pt()
     nchan = len(freq)
@@ -78,46 +87,48 @@ def create_ms_tables(path: Path, *, layout: Layout, freq: np.ndarray, chan_width
         ms.addrows(nrows)
     finally:
         ms.close()
-    _write_antenna(path, layout)
-    _write_feed(path, len(layout), time_range)
+    lofar = lofar_fields is not None
+    _write_antenna(path, names, positions, diameters, telescope, lofar)
+    _write_feed(path, len(names), time_range)
     _write_spectral_window(path, freq, chan_width)
     _write_polarization(path)
     _write_data_description(path)
-    _write_field(path, ra, dec, field_name, time_range[0], lofar=layout.is_lofar)
-    _write_observation(path, layout.telescope, time_range)
+    _write_field(path, ra, dec, field_name, time_range[0], lofar=lofar)
+    _write_observation(path, telescope, time_range)
     _write_processor_state(path)
-    if layout.is_lofar:
-        write_lofar_tables(path, layout)
+    if lofar:
+        write_lofar_tables(path, names, lofar_fields)
 
 
 def _open(path: Path, name: str):
     return _pt().table(str(path / name), readonly=False, ack=False)
 
 
-def _write_antenna(path: Path, layout: Layout) -> None:
+def _write_antenna(path: Path, names, positions, diameters, telescope: str,
+                   lofar: bool) -> None:
     pt = _pt()
-    n = len(layout)
+    n = len(names)
     with _open(path, "ANTENNA") as t:
         t.addrows(n)
-        t.putcol("NAME", np.array(layout.names))
-        t.putcol("STATION", np.array(["LOFAR" if layout.is_lofar else layout.telescope] * n))
+        t.putcol("NAME", np.array(names))
+        t.putcol("STATION", np.array(["LOFAR" if lofar else telescope] * n))
         t.putcol("TYPE", np.array(["GROUND-BASED"] * n))
         t.putcol("MOUNT", np.array(["X-Y"] * n))
-        t.putcol("POSITION", layout.positions)
+        t.putcol("POSITION", positions)
         t.putcol("OFFSET", np.zeros((n, 3)))
-        t.putcol("DISH_DIAMETER", np.asarray(layout.diameters, dtype=float))
+        t.putcol("DISH_DIAMETER", np.asarray(diameters, dtype=float))
         t.putcol("FLAG_ROW", np.zeros(n, dtype=bool))
-        if layout.is_lofar:
+        if lofar:
             t.addcols(pt.maketabdesc([
                 pt.makescacoldesc("LOFAR_STATION_ID", 0, valuetype="int"),
                 pt.makearrcoldesc("LOFAR_PHASE_REFERENCE", 0.0, shape=[3], valuetype="double",
                                   keywords={"QuantumUnits": np.array(["m", "m", "m"]),
                                             "MEASINFO": {"type": "position", "Ref": "ITRF"}}),
             ]))
-            stations = sorted({name[:5] for name in layout.names})
-            t.putcol("LOFAR_STATION_ID", np.array([stations.index(nm[:5]) for nm in layout.names],
+            stations = sorted({name[:5] for name in names})
+            t.putcol("LOFAR_STATION_ID", np.array([stations.index(nm[:5]) for nm in names],
                                                   dtype=np.int32))
-            t.putcol("LOFAR_PHASE_REFERENCE", layout.positions)
+            t.putcol("LOFAR_PHASE_REFERENCE", positions)
 
 
 def _write_feed(path: Path, nant: int, time_range) -> None:
@@ -225,8 +236,9 @@ def _write_processor_state(path: Path) -> None:
         t.putcell("FLAG_ROW", 0, False)
 
 
-def write_lofar_tables(path: Path, layout: Layout) -> None:
-    """Write LOFAR_ANTENNA_FIELD, LOFAR_ELEMENT_FAILURE and LOFAR_STATION for a LOFAR layout."""
+def write_lofar_tables(path: Path, names: Sequence[str], fields: Sequence) -> None:
+    """Write LOFAR_ANTENNA_FIELD, LOFAR_ELEMENT_FAILURE and LOFAR_STATION for the LOFAR
+    stations ``names`` and their antenna ``fields`` (as in :func:`create_ms_tables`)."""
     pt = _pt()
     metre3 = {"QuantumUnits": np.array(["m", "m", "m"])}
     field_desc = pt.maketabdesc([
@@ -244,9 +256,9 @@ def write_lofar_tables(path: Path, layout: Layout) -> None:
         pt.makearrcoldesc("ELEMENT_RCU", 0, ndim=2, valuetype="int"),
         pt.makearrcoldesc("ELEMENT_FLAG", False, ndim=2, valuetype="boolean"),
     ])
-    with pt.table(str(path / "LOFAR_ANTENNA_FIELD"), field_desc, nrow=len(layout.fields),
+    with pt.table(str(path / "LOFAR_ANTENNA_FIELD"), field_desc, nrow=len(fields),
                   ack=False) as t:
-        for row, f in enumerate(layout.fields):
+        for row, f in enumerate(fields):
             ntile = len(f.element_offsets)
             t.putcell("ANTENNA_ID", row, row)
             t.putcell("NAME", row, f.name[5:])  # HBA0 / HBA1
@@ -266,7 +278,7 @@ def write_lofar_tables(path: Path, layout: Layout) -> None:
                                     "MEASINFO": {"type": "epoch", "Ref": "UTC"}}),
     ])
     pt.table(str(path / "LOFAR_ELEMENT_FAILURE"), failure_desc, nrow=0, ack=False).close()
-    stations = sorted({name[:5] for name in layout.names})
+    stations = sorted({name[:5] for name in names})
     station_desc = pt.maketabdesc([
         pt.makescacoldesc("NAME", ""),
         pt.makescacoldesc("CLOCK_ID", 0, valuetype="int"),
@@ -279,3 +291,33 @@ def write_lofar_tables(path: Path, layout: Layout) -> None:
     with pt.table(str(path), readonly=False, ack=False) as ms:
         for name in ("LOFAR_ANTENNA_FIELD", "LOFAR_ELEMENT_FAILURE", "LOFAR_STATION"):
             ms.putkeyword(name, f"Table: {Path(path).resolve() / name}")
+
+
+@contextmanager
+def main_table(path: Path):
+    """The main table of the MS at ``path``, open for writing (:func:`put_main_rows`)."""
+    with _pt().table(str(path), readonly=False, ack=False) as ms:
+        yield ms
+
+
+def put_main_rows(ms, row0: int, times: np.ndarray, interval: float, a1: np.ndarray,
+                  a2: np.ndarray, uvw: np.ndarray, nchan: int) -> None:
+    """Fill the rows from ``row0`` on of every time in ``times`` (MJD s) and baseline
+    (``a1``, ``a2``): their ``uvw`` (ntime x nbaseline, 3) m, zero DATA, FLAG false,
+    unit weights."""
+    nbl = len(a1)
+    n = len(times) * nbl
+    ms.putcol("TIME", np.repeat(times, nbl), startrow=row0, nrow=n)
+    ms.putcol("TIME_CENTROID", np.repeat(times, nbl), startrow=row0, nrow=n)
+    ms.putcol("INTERVAL", np.full(n, interval), startrow=row0, nrow=n)
+    ms.putcol("EXPOSURE", np.full(n, interval), startrow=row0, nrow=n)
+    ms.putcol("ANTENNA1", np.tile(a1, len(times)).astype(np.int32), startrow=row0, nrow=n)
+    ms.putcol("ANTENNA2", np.tile(a2, len(times)).astype(np.int32), startrow=row0, nrow=n)
+    ms.putcol("UVW", uvw, startrow=row0, nrow=n)
+    ms.putcol("SCAN_NUMBER", np.ones(n, dtype=np.int32), startrow=row0, nrow=n)
+    ms.putcol("DATA", np.zeros((n, nchan, 4), dtype=np.complex64), startrow=row0, nrow=n)
+    ms.putcol("FLAG", np.zeros((n, nchan, 4), dtype=bool), startrow=row0, nrow=n)
+    ms.putcol("WEIGHT_SPECTRUM", np.ones((n, nchan, 4), dtype=np.float32), startrow=row0,
+              nrow=n)
+    ms.putcol("WEIGHT", np.ones((n, 4), dtype=np.float32), startrow=row0, nrow=n)
+    ms.putcol("SIGMA", np.ones((n, 4), dtype=np.float32), startrow=row0, nrow=n)
