@@ -133,7 +133,7 @@ def predict_cubes(ms: str | os.PathLike, skies: Sequence[tuple[str | os.PathLike
     """
     import casacore.tables as pt
 
-    from msleak.io.skymodel import write_skymodel
+    from msleak.adapters.skymodel import write_skymodel
     from msleak.verbs.sky import read_sky
 
     ms = Path(ms).resolve()

@@ -28,7 +28,8 @@ LAYERS = [
     ("msleak.__main__",),
 ]
 #: (importer, imported) of one layer: the only imports between packages of a layer
-SAME_LAYER = {("msleak.conventions", "msleak.errors"), ("msleak.telescope", "msleak.beam")}
+SAME_LAYER = {("msleak.conventions", "msleak.errors"), ("msleak.telescope", "msleak.beam"),
+              ("msleak.io", "msleak._everybeam")}
 
 COMPUTATION = ("sky", "beam", "predict", "ps", "leakage")
 FILE_MODULES = ("msleak.io", "casacore", "h5py", "astropy.io.fits", "matplotlib", "msleak.plot")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from msleak.io.skymodel import write_skymodel
+from msleak.adapters.skymodel import write_skymodel
 from msleak.verbs.predict import predict
 import msleak
 from msleak.sky import PointSources

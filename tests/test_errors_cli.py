@@ -27,7 +27,7 @@ def _sky(tmp, ms, name="sky.skymodel", flux="1.0, 0.3, 0.2, 0.0"):
 
 
 def _fits_sky(tmp, ms, name="sky.fits", freq_min=150e6, nchan=4, blank=False):
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from msleak.sky.foreground import generate_foreground_cube
 
     ra, dec = _phase_centre(ms)

@@ -80,7 +80,7 @@ def _random_bytes(rng, n):
 @pytest.fixture(scope="module")
 def world(tmp_path_factory, _small_lofar_ms_master):
     """Valid inputs of every kind, made once: MS, sky cube, sky model, products."""
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from msleak.io.products import open_product, save_product
     from msleak.verbs.power import power_spectrum
     from msleak.verbs.transform import transform

@@ -126,7 +126,7 @@ def test_existing_output_is_refused_before_any_work(random_ms, tmp_path, monkeyp
     monkeypatch.setattr(grid_tasks, "_grid_task", no_gridding)
     _one_line_error(_invoke("grid", random_ms, "-o", out),
                     f"{out} exists; choose another name or pass --overwrite")
-    with pytest.raises(InputError, match="exists; choose another name or pass --overwrite"):
+    with pytest.raises(InputError, match="exists; choose another name or pass overwrite"):
         msleak.grid(random_ms, output=out)
     assert out.read_text() == "keep me"
     monkeypatch.undo()

@@ -100,8 +100,8 @@ def test_column_none_with_two_skies_gives_two_arrays(ms, sky, tmp_path):
 
 
 def test_in_memory_skies_equal_their_files(ms, sky, tmp_path):
-    from msleak.io.fits import read_cube
-    from msleak.io.skymodel import read_skymodel
+    from msleak.adapters.sky_fits import read_cube
+    from msleak.adapters.skymodel import read_skymodel
 
     from_file = predict(ms, sky, column=None, beam="dipole")
     from_memory = predict(ms, read_skymodel(sky), column=None, beam="dipole")

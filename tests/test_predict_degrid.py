@@ -191,7 +191,7 @@ def test_auto_direct_fallback_equals_direct(mss, monkeypatch):
 
 
 def _fits(tmp_path, ms, name, npix):
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
 
     path = tmp_path / name
     write_cube(_cube(ms, npix=npix), path, dtype=np.float64)

@@ -148,7 +148,7 @@ def test_auto_meets_the_contract(fields, name, caplog):
 def test_cli_says_so_in_one_line(fields, tmp_path):
     """At default verbosity: auto writes the column and prints one warning line about the
     direct sum; --method degrid exits 2 with one error line and writes nothing."""
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from ms_helpers import table
 
     src, cube = fields("lofar")

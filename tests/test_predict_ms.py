@@ -302,7 +302,7 @@ def test_interrupted_run_is_marked_and_resumed(small_lofar_ms, tmp_path, monkeyp
 
 # ----------------------------------------------------------------------------- errors
 def _cube(path, freq, npix=5, pixel_deg=1.0):
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from msleak.sky.cube import SkyCube, make_celestial_wcs
 
     data = np.ones((2, len(freq), npix, npix), np.float32)
@@ -323,7 +323,7 @@ def test_fits_cube_sky_one_source_per_pixel(small_lofar_ms, tmp_path):
 
 
 def _cube_at(path, freq, ra_deg, dec_deg):
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from msleak.sky.cube import SkyCube, make_celestial_wcs
 
     data = np.ones((2, len(freq), 3, 3), np.float32)

@@ -140,7 +140,7 @@ def test_cube_crops_in_files_share_its_sum_and_equal_their_runs_alone(tmp_path, 
     correction. The 6-pixel crop ends on a block boundary of the cube and is shared, the
     8-pixel one is not; every column equals its separate run bit for bit."""
     from ms_helpers import channel_freqs
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from msleak.sky.cube import SkyCube, crop, make_celestial_wcs
 
     ms = build_ms(tmp_path / "obs.ms", ntime=3)
@@ -189,7 +189,7 @@ def test_lofar_beam_columns_match_separate_runs_within_1e6(small_lofar_ms, tmp_p
     """The LOFAR beam fits its J2000 -> ITRF map over the directions of each call: the
     Jones matrices of a direction move by ~1e-8 with the other directions, the columns
     stay within 1e-6 of the peak of separate runs. Three fields of view of one cube."""
-    from msleak.io.fits import write_cube
+    from msleak.adapters.sky_fits import write_cube
     from msleak.sky.cube import SkyCube, make_celestial_wcs
     from ms_helpers import channel_freqs
 

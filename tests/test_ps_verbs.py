@@ -92,7 +92,7 @@ def test_transform_verb_equals_cli(chain, tmp_path):
     assert written["vis"].equals(out["vis"])
     assert history_lines(written.attrs)[-1].endswith(
         f"msleak.transform(<Dataset>, window='hann', output='{tmp_path / 'd.h5'}')")
-    with pytest.raises(InputError, match="exists; choose another name or pass --overwrite"):
+    with pytest.raises(InputError, match="exists; choose another name or pass overwrite"):
         msleak.transform(uv, output=tmp_path / "d.h5")
     msleak.transform(uv, window="none", output=tmp_path / "d.h5", overwrite=True)
     assert open_product(tmp_path / "d.h5", "delay").attrs["window"] == "none"

@@ -6,8 +6,8 @@ from astropy.io import fits
 from click.testing import CliRunner
 
 from msleak.cli import cli
-from msleak.io.fits import read_cube
-from msleak.io.skymodel import read_skymodel
+from msleak.adapters.sky_fits import read_cube
+from msleak.adapters.skymodel import read_skymodel
 
 SMALL = ["--npix", "8", "--nchan", "4", "--ncells-los", "16", "--seed", "3"]
 

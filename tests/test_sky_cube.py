@@ -7,7 +7,7 @@ import pytest
 from astropy.io import fits
 
 from msleak.errors import InputError
-from msleak.io.fits import read_cube, write_cube
+from msleak.adapters.sky_fits import read_cube, write_cube
 from msleak.sky import (PointSources, SkyCube, convert_units, crop, crop_npix_for_fov,
                         make_celestial_wcs, pixel_solid_angle, recentre, sources_from_cube)
 from msleak.sky.cube import kelvin_to_jansky

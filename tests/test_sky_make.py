@@ -11,8 +11,8 @@ from click.testing import CliRunner
 import msleak
 from msleak.cli import cli
 from msleak.errors import InputError
-from msleak.io.fits import cube_from_dataset, dataset_from_cube, read_cube, write_cube
-from msleak.io.skymodel import read_skymodel
+from msleak.adapters.sky_fits import cube_from_dataset, dataset_from_cube, read_cube, write_cube
+from msleak.adapters.skymodel import read_skymodel
 from msleak.sky.foreground import ForegroundParams
 from msleak.verbs.sky import make_sky, read_sky, select_skymodel, skymodel_paths
 
@@ -139,7 +139,7 @@ def test_errors(made, tmp_path):
     cases = [
         (lambda: make_sky(crop=ds, nchan=3), "nchan is a generation option"),
         (lambda: make_sky(d / "api.fits", **SMALL), "exists; choose another name or pass "
-                                                    "--overwrite"),
+                                                    "overwrite"),
         (lambda: make_sky(phase_centre=(10, 95), **SMALL), "declination 95.0 deg is outside"),
         (lambda: make_sky(crop=ds, fov=4, crop_npix=4), "give fov or crop_npix, not both"),
         (lambda: make_sky(crop=ds, skymodel=tmp_path / "x.skymodel", skymodel_channel=4),

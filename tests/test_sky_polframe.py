@@ -7,8 +7,8 @@ import pytest
 from click.testing import CliRunner
 
 from msleak.cli import cli
-from msleak.io.fits import read_cube, write_cube
-from msleak.io.skymodel import read_skymodel
+from msleak.adapters.sky_fits import read_cube, write_cube
+from msleak.adapters.skymodel import read_skymodel
 from msleak.sky import (ForegroundParams, SkyCube, generate_foreground_cube,
                         make_celestial_wcs, recentre, sources_from_cube)
 from msleak.sky.cube import rotate_polarization, y_axis_position_angle

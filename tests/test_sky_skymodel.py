@@ -7,7 +7,7 @@ import pytest
 
 from msleak.errors import InputError
 from msleak.io.angles import format_dec, format_ra, parse_angle
-from msleak.io.skymodel import read_skymodel, write_skymodel
+from msleak.adapters.skymodel import read_skymodel, write_skymodel
 from msleak.sky import PointSources, make_celestial_wcs, sources_from_cube
 from msleak.sky.cube import SkyCube
 from msleak.verbs.sky import read_sky

@@ -91,7 +91,8 @@ def refuse_existing(path: str | os.PathLike | None, overwrite: bool) -> None:
     """One-line InputError if ``path`` exists and ``overwrite`` is false (checked before
     any work, so a refused run costs nothing)."""
     if path is not None and Path(path).exists() and not overwrite:
-        raise InputError(f"{path} exists; choose another name or pass --overwrite")
+        raise InputError(f"{path} exists; choose another name or pass overwrite",
+                         param="overwrite")
 
 
 def stamp(ds: xr.Dataset, command: str, history: Iterable[str] | None = None) -> xr.Dataset:
@@ -126,7 +127,8 @@ def save_product(ds: xr.Dataset, path: str | os.PathLike, kind: str, *,
     """
     path = Path(path)
     if path.exists() and not overwrite:
-        raise InputError(f"{path} exists; choose another name or pass --overwrite")
+        raise InputError(f"{path} exists; choose another name or pass overwrite",
+                         param="overwrite")
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
     ds = ds.copy()

@@ -17,10 +17,10 @@ from typing import Sequence
 import numpy as np
 
 from msleak.adapters.beams import load_beam
-from msleak.errors import BeamUnavailable
 from msleak.beam.maps import sin_grid
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.conventions import correlation_layout, correlations_to_stokes_matrix
+from msleak.errors import BeamUnavailable
 from msleak.errors import InputError
 from msleak.io import ms as msio
 from msleak.io.columns import read_run_state

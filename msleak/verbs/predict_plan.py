@@ -20,9 +20,12 @@ import numpy as np
 import xarray as xr
 
 from msleak import __version__
+from msleak.adapters.sky_fits import cube_from_dataset, read_cube
+from msleak.adapters.skymodel import read_skymodel
 from msleak.conventions import correlation_layout
 from msleak.errors import InputError
 from msleak.io import columns as colio
+from msleak.io.fits import is_fits
 from msleak.io.ms import (
     iter_rows,
     open_table,
@@ -33,8 +36,6 @@ from msleak.io.ms import (
     read_spectral_windows,
     read_used_antennas,
 )
-from msleak.io.fits import cube_from_dataset, is_fits, read_cube
-from msleak.io.skymodel import read_skymodel
 from msleak.predict.components import SkySet, sky_components, sky_set
 from msleak.predict.options import DegridOptions
 from msleak.sky.cube import SkyCube

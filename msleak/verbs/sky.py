@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from msleak.adapters.sky_fits import (cube_from_dataset, dataset_from_cube, read_cube,
+                                      write_cube)
+from msleak.adapters.skymodel import read_skymodel, write_skymodel
 from msleak.errors import InputError
-from msleak.io.fits import cube_from_dataset, dataset_from_cube, is_fits, read_cube, write_cube
+from msleak.io.fits import is_fits
 from msleak.io.products import call_record, refuse_existing
-from msleak.io.skymodel import read_skymodel, write_skymodel
 from msleak.sky.cube import SkyCube, Units, convert_units, recentre
 from msleak.sky.cube import crop as crop_cube
 from msleak.sky.foreground import ForegroundParams, generate_foreground_cube
