@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from msleak.verbs import predict_chunks as chunks
 from msleak.verbs import predict_run as runstate
 from msleak.verbs.predict_chunks import chunk_task
 

@@ -24,6 +24,8 @@ def _command(name: str) -> click.Command:
      "no LOFAR tables: use `--beam dipole` or `--beam-file PATH`; the beam is EveryBeam's"),
     ("the sky is fine", (), "the sky is fine"),
     ("/data/fov/fov.fits: fov is too wide.", "fov", "/data/fov/fov.fits: --fov is too wide."),
+    ("out/fov/a.fits and ./fov: om0/fov", ("fov", "om0"),
+     "out/fov/a.fits and ./fov: --om0/--fov"),
 ])
 def test_parameters_become_flags(message, params, expected):
     assert as_flags(InputError(message, param=params), _command("predict")) == expected

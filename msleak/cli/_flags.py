@@ -16,6 +16,10 @@ from msleak.errors import MsleakError
 
 __all__ = ["ALIASES", "flag_for", "as_flags"]
 
+#: a word that is a path (absolute, home- or dot-relative, or with a folder and an
+#: extension): parameter names inside it are left alone
+_PATH = re.compile(r"^[(\[\"']?(?:[/~]|\.{1,2}/|[^\s/]+/\S*\.\w)")
+
 #: parameter name -> flag, where the flag is not the parameter's name with dashes
 ALIASES: dict[str, str] = {
     "fov_deg": "--fov", "freq_min_hz": "--freq-min", "chan_width_hz": "--chan-width",
@@ -51,5 +55,7 @@ def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
         if quoted in text:
             text = text.replace(quoted, flag)
         elif not settings:
-            text = re.sub(rf"(?<![\w\-`'/.]){re.escape(param)}(?![\w\-/]|\.\w)", flag, text)
+            word = re.compile(rf"(?<![\w\-`'.]){re.escape(param)}(?![\w\-]|\.\w)")
+            text = re.sub(r"\S+", lambda m: m.group(0) if _PATH.match(m.group(0))
+                          else word.sub(flag, m.group(0)), text)
     return text
