@@ -1,2 +1,4 @@
-"""Beam models and skies that must read files themselves, and the loaders that read an
-observation through :mod:`msleak.io` and hand arrays to the computation packages."""
+"""Files read into the models' types: a beam model loaded for an MS (``beams``, and
+EveryBeam called directly, ``everybeam``), FITS sky cubes (``sky_fits``) and makesourcedb
+skies (``skymodel``). They read through :mod:`msleak.io` where they can
+(docs/architecture.md)."""

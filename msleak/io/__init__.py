@@ -1,4 +1,5 @@
-"""File formats: Measurement Sets, FITS cubes, sky models and msleak's own products.
+"""Files: Measurement Sets, FITS files and image cubes, UVBeam files, casacore measures and
+msleak's own products, read into arrays and plain records (no stage package is imported).
 
 Every casacore call of msleak goes through this package (or a module that imports it), so
 casacore is pointed at a current leap-second table here, before it first reads its data
