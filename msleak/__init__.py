@@ -21,6 +21,7 @@ _VERBS = {
     "make_sky": "msleak.verbs.sky:make_sky",
     "beam_maps": "msleak.verbs.beam_maps:beam_maps",
     "predict": "msleak.predict",
+    "noise": "msleak.verbs.noise:noise",
     "grid": "msleak.verbs.grid:grid",
     "transform": "msleak.verbs.transform:transform",
     "power_spectrum": "msleak.verbs.power:power_spectrum",

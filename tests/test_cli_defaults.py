@@ -14,6 +14,7 @@ from msleak.predict.options import DegridOptions
 
 #: command -> the verb it calls
 VERBS = {"simulate": "simulate", "sky": "make_sky", "beam": "beam_maps", "predict": "predict",
+         "noise": "noise",
          "grid": "grid", "transform": "transform", "ps": "power_spectrum",
          "leakage": "leakage"}
 #: (command, parameter) whose command-line default differs on purpose, and why

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from msleak.beam.base import BEAM_NAMES, BeamModel, BeamName, IdentityBeam
+from msleak.beam.ionosphere import IonosphereBeam
 from msleak.beam.lofar_array import LofarArray, lofar_array
 from msleak.errors import BeamUnavailable, InputError
 from msleak.io.lofar import read_lofar_antenna_fields, read_lofar_phase_references
@@ -42,7 +43,8 @@ log = logging.getLogger(__name__)
 
 
 def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = None,
-              ddid: int | None = None, stations=None, **options) -> BeamModel:
+              ddid: int | None = None, stations=None, ionosphere=None,
+              **options) -> BeamModel:
     """The beam model ``model`` for the stations and field of ``ms``.
 
     Parameters
@@ -56,6 +58,10 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         (default 0) gives the phase centre.
     stations : int array, optional
         ANTENNA rows to use instead of those of the rows.
+    ionosphere : str or path, optional
+        Ionospheric Faraday rotation in front of the beam: a CSV table of RMs or
+        ``random:SEED`` (:func:`msleak.adapters.ionosphere.rotation_measures`); the model
+        is then a :class:`~msleak.beam.ionosphere.IonosphereBeam`.
     **options
         ``everybeam``/``everybeam-direct``: ``element_model`` (EveryBeam element response
         model name, default Hamaker for LOFAR).  ``uvbeam``: ``beam_file`` (default
@@ -72,7 +78,16 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         An MS the model cannot describe (the message names the model to use instead, or
         the setting EveryBeam lacks).
     """
-    ms = check_ms(ms)
+    beam = _model(model, check_ms(ms), field_id, ddid, stations, options)
+    if ionosphere is None:
+        return beam
+    from msleak.adapters.ionosphere import rotation_measures
+
+    return IonosphereBeam(beam, rotation_measures(ionosphere, ms))
+
+
+def _model(model: BeamName, ms: Path, field_id, ddid, stations, options: dict) -> BeamModel:
+    """:func:`load_beam` without the ionosphere."""
     if model not in BEAM_NAMES:
         raise InputError(f"unknown beam {model!r}: use one of {', '.join(BEAM_NAMES)}")
     fields = read_fields(ms)
@@ -103,9 +118,10 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
 
 def beam_options(model: str, *, diameter: float | None = None,
                  element_model: str | None = None,
-                 beam_file: str | os.PathLike | None = None) -> dict:
+                 beam_file: str | os.PathLike | None = None,
+                 ionosphere: str | os.PathLike | None = None) -> dict:
     """The :func:`load_beam` options of a verb's beam settings ``diameter``,
-    ``element_model`` and ``beam_file`` (None: not given).
+    ``element_model``, ``beam_file`` and ``ionosphere`` (None: not given).
 
     Raises
     ------
@@ -126,7 +142,8 @@ def beam_options(model: str, *, diameter: float | None = None,
                          param=("diameter",))
     options = {"diameter_m": None if diameter is None else float(diameter),
                "element_model": element_model,
-               "beam_file": None if beam_file is None else str(beam_file)}
+               "beam_file": None if beam_file is None else str(beam_file),
+               "ionosphere": None if ionosphere is None else str(ionosphere)}
     return {k: v for k, v in options.items() if v is not None}
 
 

@@ -26,7 +26,7 @@ from msleak.beam.lofar_kernels import apply_left_inverse
 from msleak.errors import InputError
 
 __all__ = ["BeamName", "BeamModel", "IdentityBeam", "JonesFactors", "invert_2x2",
-           "BEAM_NAMES"]
+           "BEAM_NAMES", "centre_inverse", "centre_correction"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +66,16 @@ def centre_inverse(centre: np.ndarray) -> np.ndarray:
         log.warning("beam at the phase centre is singular for %d station/time/channel "
                     "samples; their corrected visibilities are zero", int(singular.sum()))
     return left
+
+
+def centre_correction(beam_model, centre: np.ndarray, time, freq, stations) -> np.ndarray:
+    """J(s0)^-1 (nstation, ntime, nchan, 2, 2) complex128 from the Jones matrices ``centre``
+    that ``beam_model`` gave towards the phase centre at ``time``, ``freq`` for ``stations``:
+    :func:`centre_inverse`, except that a model with a rotation on the sky's side
+    (``sky_rotation``, e.g. the ionosphere's) keeps it: only the beam is removed."""
+    left = centre_inverse(centre)
+    rotation = getattr(beam_model, "sky_rotation", None)
+    return left if rotation is None else rotation(time, freq, stations) @ left
 
 
 class JonesFactors(NamedTuple):

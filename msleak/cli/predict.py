@@ -41,6 +41,12 @@ def _split(_ctx, _param, value):
               help="With --beam dipole: station diameter (m) of its Airy station factor "
                    "[default: ANTENNA::DISH_DIAMETER].")
 @beam_model_options
+@click.option("--ionosphere", metavar="CSV|random:SEED", default=None,
+              help="Ionospheric Faraday rotation in front of each station's beam: a CSV "
+                   "table with the columns time (UTC ISO or MJD seconds), station (a name, "
+                   "or * for all) and rm (rad/m^2), interpolated in time, or random:SEED "
+                   "(a drifting screen of mean 1 and rms 0.3 rad/m^2; docs/predict.md, "
+                   "\"Ionosphere\").")
 @click.option("--column", "column", multiple=True, metavar="NAME",
               help="Column to write (created like DATA, tiled storage, if missing) "
                    "[default: MODEL_DATA]; with several --sky, one per --sky, all different.")
@@ -83,7 +89,8 @@ def _split(_ctx, _param, value):
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
-def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, centre_correction, interpolate_frequency,
+def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, column,
+            centre_correction, interpolate_frequency,
             double, double_column, method, epsilon, nsub, memory_limit, overwrite_data, field, spw,
             restart, progress, scheduler, workers):
     """Predict the visibilities of SKY through the station beams into MS (one or more
@@ -122,7 +129,7 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, column, cent
     """
     results = run(list(ms), list(sky), column=list(column) or ["MODEL_DATA"] * (len(sky) == 1),
                   fov=list(fov) or None, beam=beam, diameter=diameter,
-                  element_model=element_model, beam_file=beam_file,
+                  element_model=element_model, beam_file=beam_file, ionosphere=ionosphere,
                   centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,
                   double=double, double_column=double_column, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,

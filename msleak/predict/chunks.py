@@ -17,7 +17,8 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from msleak.beam.base import JonesFactors, centre_inverse
+from msleak.beam.base import JonesFactors
+from msleak.beam.base import centre_correction as centre_correction_of
 from msleak.errors import InputError
 from msleak.predict import kernels
 from msleak.predict.baselines import predict_rows
@@ -279,7 +280,8 @@ def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,
         jones = JonesFactors(factors.scalar[..., :-1], factors.element[..., :-1, :, :],
                              factors.group)
         centre = factors.full(-1)
-    return jones, centre_inverse(centre) if centre_correction else None
+    return jones, (centre_correction_of(beam_model, centre, times, freq, stations)
+                   if centre_correction else None)
 
 
 def _directions_jones(jones, index: np.ndarray) -> np.ndarray | None:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from msleak.beam.base import centre_inverse
+from msleak.beam.base import centre_correction as correction_of
 from msleak.beam.coords import (basis_rotation, lm_to_radec, radec_to_unit, transport_angle,
                                  zenith_j2000)
 from msleak.constants import SPEED_OF_LIGHT
@@ -518,7 +518,8 @@ def _subgrid_jones(grid: PixelGrid, beam_model, nsub: int, times, freq, stations
         idg.rotate_columns(full[:, 0, :, :-1].reshape(-1, ra.size, 2, 2), rot, turned)
         jones[:, it] = turned.reshape(stations.size, freq.size, ra.size, 2, 2)
         if left is not None:
-            left[:, it] = centre_inverse(full[:, 0, :, -1])
+            left[:, it] = correction_of(beam_model, full[:, :, :, -1], times[it:it + 1],
+                                        freq, stations)[:, 0]
     return jones, left
 
 

@@ -48,7 +48,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             column: str | None | Sequence[str] = "MODEL_DATA",
             fov: float | None | Sequence[float | None] = None, beam: str = "everybeam",
             diameter: float | None = None, element_model: str | None = None,
-            beam_file: str | os.PathLike | None = None, centre_correction: bool = True,
+            beam_file: str | os.PathLike | None = None,
+            ionosphere: str | os.PathLike | None = None, centre_correction: bool = True,
             interpolate_frequency: bool = False, double: bool = False,
             double_column: bool = False,
             field: int | str | Sequence[int | str] | None = None,
@@ -64,22 +65,21 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     ms : path or sequence of paths
         Measurement Set(s), written in place (e.g. one per subband; each gets every sky).
     sky : path, sky Dataset, SkyCube, PointSources, or a sequence of them
-        A FITS cube (one point source per pixel) or makesourcedb file, or in memory (the
-        Dataset of :func:`msleak.make_sky`). Several skies are predicted in one pass, each
-        into its own column and equal to a run with it alone (docs/predict.md).
+        A FITS cube or makesourcedb file, or in memory (:func:`msleak.make_sky`'s Dataset);
+        several skies are predicted in one pass, each into its own column (docs/predict.md).
     column : str, sequence of str, or None
         Target column of each sky (all different), created like DATA if missing; DATA
         needs ``overwrite_data``. None: the MS is opened read-only and the visibilities
         are returned.
     fov : float or sequence of float, optional
         Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
-    beam, diameter, element_model, beam_file
+    beam, diameter, element_model, beam_file, ionosphere
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
-        'dipole' or 'none') and its options (:func:`msleak.adapters.beams.load_beam`).
-    centre_correction : bool
-        Remove the beam at the phase centre: V' = J_p(s0)^-1 V J_q(s0)^-H.
-    interpolate_frequency : bool
-        Interpolate a tabulated sky linearly to the MS channels instead of requiring a match.
+        'dipole' or 'none'), its options and the ionospheric Faraday rotation in front of
+        it (a CSV table of RMs or ``random:SEED``; :func:`msleak.adapters.beams.load_beam`).
+    centre_correction, interpolate_frequency : bool
+        Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H; interpolate the
+        sky linearly to the MS channels instead of requiring a match.
     double, double_column : bool
         complex128 arithmetic (default complex64; phases always float64); also create the
         columns as complex128, which msleak grid reads and DP3 and WSClean cannot (not DATA).
@@ -107,14 +107,14 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     targets = make_targets(sky, column, fov, overwrite_data)
     budget = parse_memory(memory_limit)
     options = beam_options(beam, diameter=diameter, element_model=element_model,
-                           beam_file=beam_file)
+                           beam_file=beam_file, ionosphere=ionosphere)
     _check_options(paths, targets, double_column)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
-    plan_args = dict(beam=beam, centre_correction=centre_correction,
-                     interpolate_frequency=interpolate_frequency, dtype=dtype,
-                     field_sel=field, spw_sel=spw, beam_options=options,
-                     double_column=double_column, degrid=DegridOptions(method, epsilon, nsub))
-    runs = [runstate.new_run(make_plan(p, targets, **plan_args)) for p in paths]
+    runs = [runstate.new_run(make_plan(
+        p, targets, beam=beam, centre_correction=centre_correction, dtype=dtype,
+        interpolate_frequency=interpolate_frequency, field_sel=field, spw_sel=spw,
+        beam_options=options, double_column=double_column,
+        degrid=DegridOptions(method, epsilon, nsub))) for p in paths]
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))

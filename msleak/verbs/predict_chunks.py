@@ -73,9 +73,10 @@ class Chunk:
 
 
 def _load_beam(name: str, ms: Path, options: dict | None = None):
-    if name == "none":
-        return None
-    return load_beam(name, ms, **(options or {}))
+    options = dict(options or {})
+    if name == "none" and not options.get("ionosphere"):
+        return None                    # no Jones matrices at all: the kernels' fast path
+    return load_beam(name, ms, **options)
 
 
 def register_beam(token: str, beam: str, ms: Path, groups: list, beam_options: dict

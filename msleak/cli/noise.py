@@ -1,0 +1,39 @@
+"""``msleak noise``: thermal noise by the radiometer equation into a column of an MS."""
+
+from __future__ import annotations
+
+import click
+
+from msleak.verbs.noise import noise as verb
+
+__all__ = ["noise"]
+
+
+@click.command()
+@click.argument("ms", type=click.Path())
+@click.option("--sefd", type=float, required=True, metavar="JY",
+              help="System equivalent flux density of every station (Jy).")
+@click.option("--column", default="NOISE_DATA", show_default=True, metavar="NAME",
+              help="Column to write (created like DATA if missing).")
+@click.option("--seed", type=int, default=0, show_default=True, metavar="N",
+              help="Random seed: the noise of a row depends on it and the row alone.")
+@click.option("--add", is_flag=True,
+              help="Add the noise to the values of --column instead of replacing them.")
+@click.option("--overwrite-data", is_flag=True,
+              help="Allow --column DATA (overwrites the observed visibilities).")
+def noise(ms, sefd, column, seed, add, overwrite_data):
+    """Write thermal noise into a column of MS: complex Gaussian noise per correlation
+    whose real and imaginary parts each have the rms SEFD / sqrt(2 dnu dt) (the radiometer
+    equation; dnu the channel width, dt the row's EXPOSURE). Flagged samples are left as
+    they are. See docs/noise.md.
+
+    \b
+    Examples:
+      msleak noise obs.ms --sefd 2500 --seed 1
+      msleak noise obs.ms --sefd 2500 --column MODEL_DATA --add
+    """
+    result = verb(ms, sefd=sefd, column=column, seed=seed, add=add,
+                  overwrite_data=overwrite_data)
+    click.echo(f"{result.ms}: wrote noise of rms {result.sigma_jy:.4g} Jy per part into "
+               f"{result.column} ({result.rows_written} rows, {result.samples} unflagged "
+               "samples)", err=True)
