@@ -3,6 +3,12 @@
 Tests download nothing, whatever the date: astropy's IERS auto-download is switched off
 for the whole session, in this process and in every process a test starts (``msleak``
 subprocesses) through an astropy configuration file in a session directory.
+
+The test files are in one folder per package or stage of msleak (beam/, predict/, ps/, ...,
+and cli/, peers/, safety/, package/ for the command line, the independent tools, data
+safety and the whole package). The helper modules next to this file (ms_helpers.py,
+casa_ms.py, faults.py, peer_sim.py, peers.py) are imported by name from every folder: pytest
+puts this folder on sys.path when it imports this file.
 """
 
 from __future__ import annotations
@@ -55,7 +61,8 @@ def pytest_unconfigure(config):
 
 
 #: the test files that run longest (whole studies, killed and resumed runs, the CLI fuzz,
-#: peers' chains: 14-90 s each on 2 cores), longest first
+#: peers' chains: 14-90 s each on 2 cores), longest first, by file name (the name of a test
+#: file is unique across the folders of tests/)
 LONG_FILES = ("test_paper.py", "test_safety_kill.py", "test_forecast.py", "test_fuzz_cli.py",
               "test_cli_contract.py", "test_paper_resolution.py", "test_crosscheck.py",
               "test_docs_api.py", "test_parallel_local.py", "test_grid_memory.py",

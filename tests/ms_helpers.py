@@ -3,6 +3,9 @@ prediction of the visibilities (written here, not taken from msleak)."""
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import numpy as np
 
 C = 299_792_458.0
@@ -99,3 +102,14 @@ def one_error_line(result) -> str:
     assert len(lines) == 1 and lines[0].startswith("msleak: error:"), lines
     assert "Traceback" not in result.output
     return lines[0]
+
+
+def snapshot(ms: Path):
+    """Columns, keywords (as text) and the sha256 of every file except table.lock."""
+    with table(ms) as t:
+        cols = t.colnames()
+        keywords = repr(t.getkeywords())
+        colkw = repr({c: t.getcolkeywords(c) for c in cols})
+    files = {str(p.relative_to(ms)): hashlib.sha256(p.read_bytes()).hexdigest()
+             for p in sorted(ms.rglob("*")) if p.is_file() and p.name != "table.lock"}
+    return cols, keywords, colkw, files

@@ -1,8 +1,8 @@
 """The visibility simulators pyuvsim and matvis, run on the metadata of an msleak MS.
 
-Used by tests/test_peer_simulators.py. Each peer gets the MS's antenna positions (as East,
-North, Up offsets from their mean position), TIME centres, channel frequencies, the same
-point sources and the same beam, and returns drift-scan visibilities that this module
+Used by tests/peers/test_peer_simulators.py. Each peer gets the MS's antenna positions (as
+East, North, Up offsets from their mean position), TIME centres, channel frequencies, the
+same point sources and the same beam, and returns drift-scan visibilities that this module
 phases to the MS's phase centre. How each peer's conventions map onto msleak's (baseline
 sign, feed order, Stokes factor, polarization basis) is in docs/conventions.md, "Peer
 simulators (matvis, pyuvsim)".

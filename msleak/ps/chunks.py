@@ -135,7 +135,7 @@ def weighted_rows(inp: Input, spec: Spec, c: dict, stats: dict) -> tuple:
     rows = np.flatnonzero(keep)[used]
     # The MS's UVW column holds uvw_ANTENNA2 - uvw_ANTENNA1, and visibilities follow
     # V = sum B exp(+2 pi i UVW . (l, m, n - 1)) (DP3's convention, which msleak predict
-    # reproduces: tests/test_predict_dp3.py). The gridding kernels use
+    # reproduces: tests/peers/test_predict_dp3.py). The gridding kernels use
     # exp(-2 pi i (u l + v m + w (n - 1))), so they take u = -UVW.
     return rows, -uvw[rows], wgt[used]
 

@@ -191,7 +191,7 @@ def test_at_frequencies_tabulated():
 def test_recentre_keeps_polarized_intensity_and_moves_reference():
     cube = toy_cube()
     moved = recentre(cube, math.radians(123.4), math.radians(90.0))
-    # Q, U turn with the local North (tests/test_sky_polframe.py); |P| is kept
+    # Q, U turn with the local North (tests/sky/test_sky_polframe.py); |P| is kept
     np.testing.assert_allclose(np.hypot(*moved.data), np.hypot(*cube.data), rtol=1e-12)
     assert np.allclose(moved.wcs.wcs.crval, [123.4, 90.0])
     same = recentre(cube, math.radians(30.0), math.radians(60.0))

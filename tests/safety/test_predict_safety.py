@@ -11,37 +11,23 @@ every file (casacore's lock file aside) as before the command.
 
 from __future__ import annotations
 
-import hashlib
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from casa_ms import build_ms
-from ms_helpers import phase_centre, table, write_sky
+from ms_helpers import phase_centre, snapshot, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
-from faults import fail_after_chunks
-from msleak.verbs import predict_chunks as chunks
+from faults import fail_after_chunks, fail_at_time
 from msleak.verbs import predict as engine
 
 NTIME = 5
 #: 4 KB: one time slot per chunk, so NTIME chunks
 API = dict(beam="none", memory_limit=4096, scheduler="sync")
-
-
-def _snapshot(ms: Path):
-    """Columns, keywords (as text) and the sha256 of every file except table.lock."""
-    with table(ms) as t:
-        cols = t.colnames()
-        keywords = repr(t.getkeywords())
-        colkw = repr({c: t.getcolkeywords(c) for c in cols})
-    files = {str(p.relative_to(ms)): hashlib.sha256(p.read_bytes()).hexdigest()
-             for p in sorted(ms.rglob("*")) if p.is_file() and p.name != "table.lock"}
-    return cols, keywords, colkw, files
 
 
 def _sky(tmp_path, ms, name="sky.skymodel", shift=0.0):
@@ -55,23 +41,6 @@ def _last_time(ms):
         return float(t.getcol("TIME").max())
 
 
-def _fail_at(monkeypatch, when: float, error: BaseException, watch=()) -> list:
-    """Make the chunk holding TIME ``when`` raise ``error``. Returns a list that gets, for
-    every chunk computed, whether each MS of ``watch`` held a header backup at that moment
-    (it does once the run has written a chunk into it)."""
-    original = chunks.predict_chunk
-    seen: list = []
-
-    def patched(comp, beam_model, times, *args, **kwargs):
-        seen.append([(Path(m) / colio.BACKUP_DIR).is_dir() for m in watch])
-        if np.any(times == when):
-            raise error
-        return original(comp, beam_model, times, *args, **kwargs)
-
-    monkeypatch.setattr(chunks, "predict_chunk", patched)
-    return seen
-
-
 @pytest.fixture
 def ms(tmp_path):
     return build_ms(tmp_path / "obs.ms", ntime=NTIME)
@@ -79,14 +48,14 @@ def ms(tmp_path):
 
 def test_refusal_at_last_chunk_new_column(ms, tmp_path, monkeypatch):
     sky = _sky(tmp_path, ms)
-    before = _snapshot(ms)
+    before = snapshot(ms)
     assert "MODEL_DATA" not in before[0]
-    seen = _fail_at(monkeypatch, _last_time(ms), InputError("refused in the test"), [ms])
+    seen = fail_at_time(monkeypatch, _last_time(ms), InputError("refused in the test"), [ms])
     with pytest.raises(InputError, match="refused in the test"):
         engine.predict(ms, sky, **API)
     # NTIME chunks were computed, the first ones written (the run's header backup existed)
     assert len(seen) == NTIME and seen[-1] == [True]
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
 
 
 def test_refusal_at_last_chunk_existing_column(ms, tmp_path, monkeypatch):
@@ -94,12 +63,12 @@ def test_refusal_at_last_chunk_existing_column(ms, tmp_path, monkeypatch):
     with table(ms) as t:
         old = t.getcol("MODEL_DATA")
     assert np.abs(old).max() > 0.5
-    before = _snapshot(ms)
-    seen = _fail_at(monkeypatch, _last_time(ms), InputError("refused in the test"), [ms])
+    before = snapshot(ms)
+    seen = fail_at_time(monkeypatch, _last_time(ms), InputError("refused in the test"), [ms])
     with pytest.raises(InputError, match="refused in the test"):
         engine.predict(ms, _sky(tmp_path, ms), **API)
     assert len(seen) == NTIME and seen[-1] == [True]
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
     with table(ms) as t:
         np.testing.assert_array_equal(t.getcol("MODEL_DATA"), old)
 
@@ -114,13 +83,13 @@ def test_refused_rerun_keeps_an_interrupted_run_resumable(ms, tmp_path, monkeypa
     with monkeypatch.context() as m, pytest.raises(RuntimeError, match="simulated failure"):
         fail_after_chunks(m, 2)
         engine.predict(ms, sky, **API)
-    before = _snapshot(ms)
+    before = snapshot(ms)
     assert (ms / colio.BACKUP_DIR).is_dir()
     with monkeypatch.context() as m:
-        _fail_at(m, _last_time(ms), InputError("refused in the test"))
+        fail_at_time(m, _last_time(ms), InputError("refused in the test"))
         with pytest.raises(InputError, match="refused in the test"):
             engine.predict(ms, sky, **API)
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
     res = engine.predict(ms, sky, **API)
     assert res.resumed
     with table(ms) as t, table(ref) as r:
@@ -135,7 +104,7 @@ def test_interruption_at_last_chunk_stays_resumable(ms, tmp_path, monkeypatch, i
     sky = _sky(tmp_path, ms)
     error = KeyboardInterrupt() if interrupt == "ctrl-c" else WorkerLost("worker lost (test)")
     with monkeypatch.context() as m:
-        _fail_at(m, _last_time(ms), error)
+        fail_at_time(m, _last_time(ms), error)
         with pytest.raises(type(error)):
             engine.predict(ms, sky, **API)
     with table(ms) as t:
@@ -154,13 +123,13 @@ def test_refusal_in_second_ms_undoes_the_first(tmp_path, monkeypatch):
     one = build_ms(tmp_path / "one.ms", ntime=NTIME)
     two = build_ms(tmp_path / "two.ms", ntime=NTIME, time0_s=56329.0 * 86400.0 + 3600.0)
     engine.predict(one, _sky(tmp_path, one, "old.skymodel", shift=0.01), **API)
-    before = [_snapshot(one), _snapshot(two)]
-    seen = _fail_at(monkeypatch, _last_time(two), InputError("refused in the test"),
+    before = [snapshot(one), snapshot(two)]
+    seen = fail_at_time(monkeypatch, _last_time(two), InputError("refused in the test"),
                     [one, two])
     with pytest.raises(InputError, match="refused in the test"):
         engine.predict([one, two], _sky(tmp_path, one), **API)
     assert len(seen) == 2 * NTIME and seen[-1] == [False, True]
-    assert [_snapshot(one), _snapshot(two)] == before
+    assert [snapshot(one), snapshot(two)] == before
 
 
 def test_nonfinite_uvw_in_last_chunk_refused_before_writing(ms, tmp_path):
@@ -168,14 +137,14 @@ def test_nonfinite_uvw_in_last_chunk_refused_before_writing(ms, tmp_path):
     with table(ms, readonly=False) as t:
         last = int(np.flatnonzero(t.getcol("TIME") == t.getcol("TIME").max())[2])
         t.putcell("UVW", last, np.array([np.nan, 1.0, 2.0]))
-    before = _snapshot(ms)
+    before = snapshot(ms)
     r = CliRunner().invoke(cli, ["predict", str(ms), "--sky", str(sky), "--beam", "none",
                                  "--memory-limit", "4KB"])
     assert r.exit_code == 2, r.output
     line = r.output.strip().splitlines()[-1]
     assert line.startswith("msleak: error:") and f"first: row {last}" in line, line
     assert "--field / --spw" in line
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
 
 
 def test_unusable_column_in_second_ms_refused_before_writing(tmp_path):
@@ -185,7 +154,7 @@ def test_unusable_column_in_second_ms_refused_before_writing(tmp_path):
     two = build_ms(tmp_path / "two.ms", ntime=2)
     with table(two, readonly=False) as t:  # a MODEL_DATA of another cell shape than DATA
         t.addcols(pt.makearrcoldesc("MODEL_DATA", 0j, ndim=2, shape=[2, 4], options=4))
-    before = [_snapshot(one), _snapshot(two)]
+    before = [snapshot(one), snapshot(two)]
     with pytest.raises(InputError, match="exists with another shape"):
         engine.predict([one, two], _sky(tmp_path, one), **API)
-    assert [_snapshot(one), _snapshot(two)] == before
+    assert [snapshot(one), snapshot(two)] == before

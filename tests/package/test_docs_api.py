@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "api.md"
+DOC = Path(__file__).resolve().parents[2] / "docs" / "api.md"
 
 
 def _blocks() -> list[str]:

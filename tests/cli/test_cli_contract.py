@@ -23,7 +23,7 @@ from msleak import __version__
 from msleak.cli import COMMANDS, cli
 from ms_helpers import split_qu_cube
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "msleak"
 TINY_SKY = ["--seed", "1", "--npix", "8", "--nchan", "2"]
 LOG_LINE = re.compile(r"^\d\d:\d\d:\d\d msleak[\w.]* (DEBUG|INFO|WARNING|ERROR): ")

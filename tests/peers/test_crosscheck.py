@@ -19,7 +19,7 @@ from peers import missing
 if importlib.util.find_spec("dp3") is None:
     missing("dp3", "dp3 (pip install dp3) is the independent predict")
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "crosscheck.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "crosscheck.py"
 #: 6 HBA fields, 2 slots of 1800 s, 8 channels: about 3 s of DP3 per channel
 TINY = ["--field", "3c196", "--stations", "CS00[1-3]HBA*", "--duration", "1",
         "--interval", "1800", "--nchan", "8", "--no-figures"]
@@ -29,7 +29,7 @@ TINY = ["--field", "3c196", "--stations", "CS00[1-3]HBA*", "--duration", "1",
 #: I. Measured 2.3e-4 to 5e-4 (the beam difference hardly leaks into I); 1e-3 bounds it.
 #: A wrong convention (conjugated phase, a turned sky frame, no centre correction) moves
 #: the visibilities by far more: the centre correction alone by over 1e-2
-#: (tests/test_predict_dp3.py).
+#: (tests/peers/test_predict_dp3.py).
 TOL_STOKES_I = 1e-3
 #: L_I per field of view and per field (relative). L_I is 100 sqrt(P_I / P_P), so a
 #: voxel's L_I moves by about the relative change of its Stokes I amplitude, and a median

@@ -268,7 +268,7 @@ def test_memory_budget_is_shared_and_bounds_chunks():
     spec = Spec(("DATA",), "wgrid", make_grid(16.0, 180.0), 30.0, 180.0, 1e-6, 1, None, None)
     nchan = 50
     # the most rows whose working set (what tasks and this process hold, checked against
-    # traced allocations in tests/test_grid_memory.py) fits; four tasks share the budget
+    # traced allocations in tests/ps/test_grid_memory.py) fits; four tasks share the budget
     for budget in (2e8, 8e8):
         rows = rows_for_memory(budget, nchan, spec, 4)
         assert working_set(rows, nchan, spec, 4) <= budget < working_set(rows + 1, nchan,

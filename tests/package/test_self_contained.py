@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: Markdown pages msleak writes into its output folders (paper, leakage, forecast).
 WRITTEN_PAGES = {"report.md", "stats.md", "forecast.md"}
 #: Markdown pages the scripts write into theirs (scripts/crosscheck).

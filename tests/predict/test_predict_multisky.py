@@ -21,7 +21,7 @@ import pytest
 from click.testing import CliRunner
 
 from casa_ms import build_ms
-from ms_helpers import direct_dft, lm_to_radec, phase_centre, table, write_sky
+from ms_helpers import direct_dft, lm_to_radec, phase_centre, snapshot, table, write_sky
 from msleak.cli import cli
 from msleak.errors import InputError
 from msleak.io import columns as colio
@@ -29,9 +29,9 @@ from msleak.verbs import predict_chunks as chunks
 from msleak.verbs import predict as engine
 from msleak.predict import kernels as K
 from msleak.predict.chunks import plan_chunks
+from faults import fail_at_time
 from test_predict_kernels import _direct
 from test_predict_ms import _jones_fn
-from test_predict_safety import _fail_at, _snapshot
 
 NTIME = 5
 #: 4 KB: one time slot per chunk, so NTIME chunks
@@ -340,7 +340,7 @@ def test_interrupted_run_resumes_every_column(tmp_path, monkeypatch):
     ref = _reference(tmp_path, ms, targets)
     nrow = _col(ms, "TIME").size
     with monkeypatch.context() as m:
-        _fail_at(m, _times(ms)[2], KeyboardInterrupt())  # chunks 0 and 1 are written
+        fail_at_time(m, _times(ms)[2], KeyboardInterrupt())  # chunks 0 and 1 are written
         with pytest.raises(KeyboardInterrupt):
             _together(ms, targets, beam="none", **SMALL)
     for column, state in _states(ms, columns).items():
@@ -371,7 +371,7 @@ def test_columns_at_different_progress_and_completed_columns(tmp_path, monkeypat
                       (times[4], lambda: engine.predict(ms, a, column="M_A", beam="none",
                                                         **SMALL))):
         with monkeypatch.context() as m:
-            _fail_at(m, when, KeyboardInterrupt())
+            fail_at_time(m, when, KeyboardInterrupt())
             with pytest.raises(KeyboardInterrupt):
                 run()
     states = _states(ms, ["M_A", "M_B"])
@@ -383,7 +383,7 @@ def test_columns_at_different_progress_and_completed_columns(tmp_path, monkeypat
         np.testing.assert_array_equal(_col(ms, column), _col(ref, column))
 
     with monkeypatch.context() as m:
-        _fail_at(m, times[3], KeyboardInterrupt())
+        fail_at_time(m, times[3], KeyboardInterrupt())
         with pytest.raises(KeyboardInterrupt):
             _together(ms, targets, beam="none", **SMALL)
     assert engine.predict(ms, a, column="M_A", beam="none", **SMALL).resumed
@@ -412,12 +412,12 @@ def test_refusal_in_a_multisky_run_leaves_the_ms_byte_identical(tmp_path, monkey
     targets = _targets(a, b)
     for column in existing:  # an older prediction of another sky
         engine.predict(ms, b if column == "M_A" else a, column=column, beam="none")
-    before = _snapshot(ms)
-    seen = _fail_at(monkeypatch, _times(ms)[-1], InputError("refused in the test"), [ms])
+    before = snapshot(ms)
+    seen = fail_at_time(monkeypatch, _times(ms)[-1], InputError("refused in the test"), [ms])
     with pytest.raises(InputError, match="refused in the test"):
         _together(ms, targets, beam="none", **SMALL)
     assert len(seen) == NTIME and seen[-1] == [True]
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
 
 
 def test_new_columns_that_do_not_fit_together_are_refused_before_writing(tmp_path,
@@ -431,10 +431,10 @@ def test_new_columns_that_do_not_fit_together_are_refused_before_writing(tmp_pat
     usage = sh.disk_usage(ms)
     monkeypatch.setattr(sh, "disk_usage",
                         lambda path: usage._replace(free=int(1.5 * one)))
-    before = _snapshot(ms)
+    before = snapshot(ms)
     with pytest.raises(InputError, match="not enough disk space for columns M_A, M_B"):
         _together(ms, _targets(a, b)[:2], beam="none")
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
     monkeypatch.undo()
     _together(ms, _targets(a, b)[:2], beam="none")
 
@@ -459,14 +459,14 @@ def _invoke(*args):
 def test_cli_pairing_errors_exit_2_with_one_line(tmp_path, case, message):
     ms = build_ms(tmp_path / "obs.ms", ntime=2)
     a, b, _, _ = _skies(tmp_path, ms)
-    before = _snapshot(ms)
+    before = snapshot(ms)
     args = [{"A": a, "B": b}.get(x, x) for x in case]
     r = _invoke(ms, *args, "--beam", "none")
     assert r.exit_code == 2, r.output
     lines = r.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("msleak: error: "), r.output
     assert message in lines[0], r.output
-    assert _snapshot(ms) == before
+    assert snapshot(ms) == before
 
 
 def test_cli_two_skies_one_fov_provenance_per_column(tmp_path):

@@ -282,7 +282,7 @@ def test_pyuvsim_azimuth_sign_against_geometry(dipole_errors):
     with either sign, against geometry alone (_short_dipole_errors). Exactly one
     handling, with Q and U as they are, must agree (pyuvsim 1.4.2: the mirrored one); a
     pyuvsim that agrees both ways or neither fails. msleak's reading of UVBeam's basis is
-    checked against the same dipoles in tests/test_beam_uvbeam.py."""
+    checked against the same dipoles in tests/beam/test_beam_uvbeam.py."""
     right, wrong = _geometry_verdict(dipole_errors)
     print(f"pyuvsim agrees with the geometry with the beam's azimuth component {right}, "
           f"not {wrong}")

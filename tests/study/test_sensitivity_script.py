@@ -13,7 +13,7 @@ import pytest
 
 from ms_helpers import table as _table
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "sensitivity.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "sensitivity.py"
 
 
 @pytest.fixture(scope="module")

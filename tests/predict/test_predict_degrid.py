@@ -5,7 +5,7 @@ transported polarization basis is what makes it work at the NCP; the command lin
 the choice of ``auto`` and refuses what degrid cannot do in one line.
 
 Tolerances (epsilon = 1e-6, the default). The degridder's own error is at most epsilon
-relative rms (tests/test_predict_idg.py measures 5 to 80 times less). The beams are only
+relative rms (tests/predict/test_predict_idg.py measures 5 to 80 times less). The beams are only
 sampled at nsub x nsub directions across twice the sky's width: the dipole beam is smooth
 at that scale (it adds nothing measurable), the LOFAR station beam is not quite (HBA
 stations of about 30 m: sidelobes a few degrees apart). Measured on the 8 deg, 32 x 32
@@ -43,7 +43,7 @@ def mss(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("degrid")
     # 3C196 two hours before transit: the zenith 20 deg away, outside the padded field
-    # (at transit it is 4.8 deg from the phase centre, tests/test_predict_degrid_zenith.py)
+    # (at transit it is 4.8 deg from the phase centre, tests/predict/test_predict_degrid_zenith.py)
     start = {"3c196": "2012-12-16T00:06:00", "ncp": None}
     return {f: simulate(root / f"{f}.ms", field=f, start=start[f], **MS_PARAMS)
             for f in ("3c196", "ncp")}

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "msleak"
+PACKAGE = Path(__file__).resolve().parents[2] / "msleak"
 
 #: bottom to top: a module may import its own package and the packages of lower layers
 LAYERS = [
