@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 from typing import get_args
 
 import click
 from astropy.io import fits
 
-from msleak.cli._common import FloatList, physics_options
+from msleak.cli._common import FloatList
 from msleak.errors import InputError
 from msleak.io.fits import is_fits
 from msleak.plot.sky import plot_sky
@@ -42,6 +43,62 @@ def _report(ds, out, generated: bool) -> None:
                  f"seed {header['MSLEAK SEED']}")
     click.echo(f"wrote {out}: {','.join(stokes)} x {ds.sizes['freq']} channels x "
                f"{ds.sizes['y']}x{ds.sizes['x']} px in {ds.attrs['units']}{extra}")
+
+
+#: the foreground model's options of ``msleak sky``: field of
+#: :class:`~msleak.sky.foreground.ForegroundParams` -> (flag, click type, metavar, help);
+#: each default is the field's
+_PHYSICS = {
+    "depth_pc": ("--depth-pc", float, "PC",
+                 "Depth of the emitting and rotating slab along the line of sight, pc."),
+    "ncells_los": ("--ncells-los", click.IntRange(2, None), "N", "Cells along the line of sight."),
+    "cell_perp_pc": ("--cell-perp-pc", float, "PC",
+                     "Transverse cell size, pc [default: depth / ncells, cubic cells; smaller "
+                     "values give smoother maps but less Faraday-depth spread across the "
+                     "field]."),
+    "b_regular_ug": ("--b-regular", FloatList(3), "BE,BN,BPAR",
+                     "Regular magnetic field: east, north, line-of-sight (towards the "
+                     "observer) components, microgauss."),
+    "b_random_rms_ug": ("--b-random-rms", float, "UG",
+                        "rms |B| of the random (turbulent) field, microgauss."),
+    "b_index": ("--b-index", float, "X",
+                "3-D power-spectrum index of the random field, P(k) ~ k^-index "
+                "(11/3: Kolmogorov)."),
+    "solenoidal": ("--solenoidal/--no-solenoidal", None, None,
+                   "Make the random field divergence-free."),
+    "ne_mean_cm3": ("--ne-mean", float, "CM-3", "Mean thermal electron density, cm^-3."),
+    "ne_sigma_ln": ("--ne-sigma", float, "X",
+                    "Log-normal width (std of ln n_e) of the thermal electrons."),
+    "ne_index": ("--ne-index", float, "X", "3-D power-spectrum index of ln n_e."),
+    "ncr_sigma_ln": ("--ncr-sigma", float, "X",
+                     "Log-normal width of the cosmic-ray electron density."),
+    "ncr_index": ("--ncr-index", float, "X", "3-D power-spectrum index of ln n_CR."),
+    "electron_index": ("--electron-index", float, "X",
+                       "Cosmic-ray energy index p (N(E) ~ E^-p); brightness T ~ nu^-(p+3)/2."),
+    "outer_scale_pc": ("--outer-scale-pc", float, "PC",
+                       "Outer scale of all random fields, pc [default: none, pure power "
+                       "laws]."),
+    "p_rms_k": ("--p-rms", float, "K",
+                "rms polarized brightness |P| over the map at --ref-freq, K (sets the "
+                "emissivity scale)."),
+    "ref_freq_hz": ("--ref-freq", float, "HZ", "Frequency at which --p-rms holds, Hz."),
+}
+
+
+def physics_options(func):
+    """The options of ``msleak sky`` for the foreground model, one per field of
+    :class:`~msleak.sky.foreground.ForegroundParams` with the field's default, passed under
+    the field's name."""
+    for f in reversed(fields(ForegroundParams)):
+        flag, kind, metavar, text = _PHYSICS[f.name]
+        default = f.default
+        if isinstance(default, tuple):
+            default = ",".join(map(str, default))
+        extra = {} if kind is None else {"type": kind, "metavar": metavar}
+        func = click.option(flag, f.name, default=default, show_default=default is not None,
+                            help=text, **extra)(func)
+    return func
+
 
 
 @click.command("sky")
