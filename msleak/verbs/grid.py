@@ -273,11 +273,11 @@ def _run(plan: _Plan, chunk_rows, scheduler, workers, memory_limit, progress) ->
     where = f"field {inp.field_id}, spectral window {inp.spw_id}"
     if stats["rows"] == 0:
         raise InputError(f"{plan.label}: no cross-correlation rows for {where}; choose "
-                         "others with field, spw", param=("field", "spw"))
+                         "others with `field`, `spw`", param=("field", "spw"))
     if stats["unflagged"] == 0:
         raise InputError(f"{plan.label}: all {stats['samples']} samples of {where} are "
-                         "flagged (FLAG/FLAG_ROW/zero weights); choose others with field, "
-                         "spw", param=("field", "spw"))
+                         "flagged (FLAG/FLAG_ROW/zero weights); choose others with "
+                         "`field`, `spw`", param=("field", "spw"))
     if stats["in_range"] == 0:
         raise InputError(f"{plan.label}: no unflagged sample has a baseline in "
                          f"{spec.uv_min:g}..{spec.uv_max:g} wavelengths; widen uv_range",

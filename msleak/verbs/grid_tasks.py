@@ -122,7 +122,7 @@ def _baseline_span(ms, rows: np.ndarray, field_id: int, spw_id: int) -> tuple[fl
                 lo, hi = min(lo, float(b.min())), max(hi, float(b.max()))
     if hi == 0.0:
         raise InputError(f"{ms}: no cross-correlation rows for field {field_id}, spectral "
-                         f"window {spw_id}; choose others with field, spw",
+                         f"window {spw_id}; choose others with `field`, `spw`",
                          param=("field", "spw"))
     return lo, hi
 

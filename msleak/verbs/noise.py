@@ -67,8 +67,8 @@ def noise(ms: str | os.PathLike, *, sefd: float | dict[str, float], column: str 
     colio.check_writable(path)
     with colio.open_for_writing(path) as table:
         if add and column not in table.colnames():
-            raise InputError(f"{path}: no column {column} to add noise to; leave out add, "
-                             "or give a column that exists", param=("add", "column"))
+            raise InputError(f"{path}: no column {column} to add noise to; leave out `add`, "
+                             "or give a `column` that exists", param=("add", "column"))
         created = colio.ensure_data_column(table, column)
         rows_written, samples, power = _write(path, table, column, station_sefd, seed,
                                               add and not created)

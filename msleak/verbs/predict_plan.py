@@ -359,4 +359,4 @@ def _check_rows(ms: Path, groups: list) -> None:
                     f"TIME or UVW that is not a finite number (first: row {int(rows[bad][0])}); "
                     "delete them first (TaQL: DELETE FROM <ms> WHERE NOT (isfinite(TIME) && "
                     "all(isfinite(UVW)))) or leave that field or spectral window out with "
-                    "field / spw", param=("field", "spw"))
+                    "`field` / `spw`", param=("field", "spw"))

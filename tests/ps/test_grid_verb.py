@@ -102,7 +102,7 @@ def test_spw_is_looked_up_and_field_taken_by_name(random_ms, tmp_path):
                                rtol=0, atol=1e-3)
     assert (by_name.attrs["spw_id"], by_name.attrs["ddid"], by_name.attrs["field_id"]) == (1, 0, 0)
     with pytest.raises(InputError, match="no cross-correlation rows for field 0, spectral "
-                                         "window 0; choose others with field, spw"):
+                                         "window 0; choose others with `field`, `spw`"):
         msleak.grid(ms, uv_range=UV, gridder="cell", spw=0)
     _one_line_error(_invoke("grid", ms, "--spw", "5", "-o", tmp_path / "g.h5"),
                     "no spectral window 5 in the DATA_DESCRIPTION table (spectral windows: "
