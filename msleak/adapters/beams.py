@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from msleak.beam.base import BEAM_NAMES, BeamModel, BeamName, IdentityBeam
+from msleak.beam.errors import BeamErrors, perturb_lofar
 from msleak.beam.ionosphere import IonosphereBeam
 from msleak.beam.lofar_array import LofarArray, lofar_array
 from msleak.errors import BeamUnavailable, InputError
@@ -44,7 +45,7 @@ log = logging.getLogger(__name__)
 
 def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = None,
               ddid: int | None = None, stations=None, ionosphere=None,
-              **options) -> BeamModel:
+              beam_errors=None, **options) -> BeamModel:
     """The beam model ``model`` for the stations and field of ``ms``.
 
     Parameters
@@ -62,6 +63,9 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         Ionospheric Faraday rotation in front of the beam: a CSV table of RMs or
         ``random:SEED`` (:func:`msleak.adapters.ionosphere.rotation_measures`); the model
         is then a :class:`~msleak.beam.ionosphere.IonosphereBeam`.
+    beam_errors : BeamErrors or str, optional
+        Errors of the model (:class:`msleak.beam.errors.BeamErrors`, or its text
+        ``"failed=F,rotation=DEG,seed=N"``): LOFAR HBA through the fast path only.
     **options
         ``everybeam``/``everybeam-direct``: ``element_model`` (EveryBeam element response
         model name, default Hamaker for LOFAR).  ``uvbeam``: ``beam_file`` (default
@@ -78,6 +82,9 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         An MS the model cannot describe (the message names the model to use instead, or
         the setting EveryBeam lacks).
     """
+    errors = _beam_errors(model, beam_errors)
+    if errors is not None:
+        options = {**options, "beam_errors": errors}
     beam = _model(model, check_ms(ms), field_id, ddid, stations, options)
     if ionosphere is None:
         return beam
@@ -104,12 +111,17 @@ def _model(model: BeamName, ms: Path, field_id, ddid, stations, options: dict) -
         loader, allowed = _LOADERS[model]
         _check_options(model, options, allowed)
         return loader(ms, field_id=field_row, used_stations=used, **options)
-    _check_options(model, options, {"element_model"})
+    _check_options(model, options, {"element_model", "beam_errors"})
     element_model = options.get("element_model", "default")
+    errors = options.get("beam_errors")
     if model == "everybeam":
-        fast = _try_fast(ms, element_model, field_row, used, ddid)
+        fast = _try_fast(ms, element_model, field_row, used, ddid, errors)
         if fast is not None:
             return fast
+    if errors is not None:
+        raise InputError(f"{ms}: beam errors are modelled for LOFAR HBA through msleak's "
+                         "fast path only (`beam='everybeam'`, the default element model)",
+                         param="beam_errors")
     from msleak.adapters.everybeam import EveryBeamDirect
 
     return EveryBeamDirect(ms, element_model=element_model, field_id=field_row,
@@ -119,9 +131,11 @@ def _model(model: BeamName, ms: Path, field_id, ddid, stations, options: dict) -
 def beam_options(model: str, *, diameter: float | None = None,
                  element_model: str | None = None,
                  beam_file: str | os.PathLike | None = None,
-                 ionosphere: str | os.PathLike | None = None) -> dict:
+                 ionosphere: str | os.PathLike | None = None,
+                 beam_errors: str | BeamErrors | None = None) -> dict:
     """The :func:`load_beam` options of a verb's beam settings ``diameter``,
-    ``element_model``, ``beam_file`` and ``ionosphere`` (None: not given).
+    ``element_model``, ``beam_file``, ``ionosphere`` and ``beam_errors`` (None: not given;
+    beam errors as their text, so that the options are a run's JSON settings).
 
     Raises
     ------
@@ -143,7 +157,8 @@ def beam_options(model: str, *, diameter: float | None = None,
     options = {"diameter_m": None if diameter is None else float(diameter),
                "element_model": element_model,
                "beam_file": None if beam_file is None else str(beam_file),
-               "ionosphere": None if ionosphere is None else str(ionosphere)}
+               "ionosphere": None if ionosphere is None else str(ionosphere),
+               "beam_errors": _errors_text(model, beam_errors)}
     return {k: v for k, v in options.items() if v is not None}
 
 
@@ -286,14 +301,15 @@ _LOADERS = {
 }
 
 
-def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | None = None):
+def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | None = None,
+              errors=None):
     """The fast evaluator of a LOFAR HBA MS with its LOFAR tables or of an SKA-Low MS with
     its PHASED_ARRAY table, else None (EveryBeam directly, which says why it cannot read an
     MS)."""
     from msleak.io.phased_array import has_phased_array
 
     telescope = read_telescope_name(ms).upper()
-    if telescope == "SKA-LOW" and has_phased_array(ms):
+    if telescope == "SKA-LOW" and has_phased_array(ms) and errors is None:
         spw = None if ddid is None else read_data_descriptions(ms)[ddid][0]
         return ska_low_from_ms(ms, element_model=element_model, field_id=field_id,
                                used_stations=used, spw=spw)
@@ -310,7 +326,25 @@ def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | Non
         return None
     from msleak.beam.lofar_fast import LofarFastBeam
 
-    return LofarFastBeam(array, used_stations=used)
+    return LofarFastBeam(array if errors is None else perturb_lofar(array, errors),
+                         used_stations=used)
+
+
+def _errors_text(model: str, beam_errors) -> str | None:
+    errors = _beam_errors(model, beam_errors)
+    return None if errors is None else errors.describe()
+
+
+def _beam_errors(model: str, beam_errors):
+    """The :class:`BeamErrors` of a ``beam_errors`` setting (None: none)."""
+    if beam_errors is None:
+        return None
+    errors = beam_errors if isinstance(beam_errors, BeamErrors) else \
+        BeamErrors.parse(beam_errors)
+    if model != "everybeam":
+        raise InputError(f"beam_errors applies to `beam='everybeam'` (LOFAR HBA) only, not "
+                         f"beam {model!r}", param="beam_errors")
+    return None if errors.none else errors
 
 
 def _check_options(model: str, options: dict, allowed: set) -> None:

@@ -47,6 +47,11 @@ def _split(_ctx, _param, value):
                    "or * for all) and rm (rad/m^2), interpolated in time, or random:SEED "
                    "(a drifting screen of mean 1 and rms 0.3 rad/m^2; docs/predict.md, "
                    "\"Ionosphere\").")
+@click.option("--beam-errors", metavar="failed=F,rotation=DEG,seed=N", default=None,
+              help="Errors of the LOFAR beam model, per station and reproducible: a fraction "
+                   "of failed tiles per field and the rms rotation error of each station "
+                   "(degrees) about its field normal (docs/beam.md, \"Beam-model "
+                   "errors\").")
 @click.option("--column", "column", multiple=True, metavar="NAME",
               help="Column to write (created like DATA, tiled storage, if missing) "
                    "[default: MODEL_DATA]; with several --sky, one per --sky, all different.")
@@ -89,7 +94,8 @@ def _split(_ctx, _param, value):
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
-def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, column,
+def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, beam_errors,
+            column,
             centre_correction, interpolate_frequency,
             double, double_column, method, epsilon, nsub, memory_limit, overwrite_data, field, spw,
             restart, progress, scheduler, workers):
@@ -130,6 +136,7 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, 
     results = run(list(ms), list(sky), column=list(column) or ["MODEL_DATA"] * (len(sky) == 1),
                   fov=list(fov) or None, beam=beam, diameter=diameter,
                   element_model=element_model, beam_file=beam_file, ionosphere=ionosphere,
+                  beam_errors=beam_errors,
                   centre_correction=centre_correction, interpolate_frequency=interpolate_frequency,
                   double=double, double_column=double_column, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,

@@ -49,9 +49,9 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             fov: float | None | Sequence[float | None] = None, beam: str = "everybeam",
             diameter: float | None = None, element_model: str | None = None,
             beam_file: str | os.PathLike | None = None,
-            ionosphere: str | os.PathLike | None = None, centre_correction: bool = True,
-            interpolate_frequency: bool = False, double: bool = False,
-            double_column: bool = False,
+            ionosphere: str | os.PathLike | None = None, beam_errors: str | None = None,
+            centre_correction: bool = True, interpolate_frequency: bool = False,
+            double: bool = False, double_column: bool = False,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
@@ -68,15 +68,15 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         A FITS cube or makesourcedb file, or in memory (:func:`msleak.make_sky`'s Dataset);
         several skies are predicted in one pass, each into its own column (docs/predict.md).
     column : str, sequence of str, or None
-        Target column of each sky (all different), created like DATA if missing; DATA
-        needs ``overwrite_data``. None: the MS is opened read-only and the visibilities
-        are returned.
+        Target column of each sky (all different), created like DATA if missing (DATA needs
+        ``overwrite_data``); None: the MS is opened read-only, the visibilities returned.
     fov : float or sequence of float, optional
         Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
-    beam, diameter, element_model, beam_file, ionosphere
+    beam, diameter, element_model, beam_file, ionosphere, beam_errors
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
-        'dipole' or 'none'), its options and the ionospheric Faraday rotation in front of
-        it (a CSV table of RMs or ``random:SEED``; :func:`msleak.adapters.beams.load_beam`).
+        'dipole' or 'none'), its options, the ionospheric Faraday rotation in front of it
+        (a CSV table of RMs or ``random:SEED``) and its errors (``"failed=F,rotation=DEG,
+        seed=N"``, LOFAR); :func:`msleak.adapters.beams.load_beam`.
     centre_correction, interpolate_frequency : bool
         Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H; interpolate the
         sky linearly to the MS channels instead of requiring a match.
@@ -91,8 +91,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     overwrite_data, restart : bool
         Allow ``column="DATA"``; start over instead of resuming an interrupted run.
     method, epsilon, nsub
-        How pixel skies are predicted and to what accuracy
-        (:class:`msleak.predict.options.DegridOptions`, docs/predict.md).
+        How pixel skies are predicted (:class:`msleak.predict.options.DegridOptions`).
 
     Returns
     -------
@@ -107,7 +106,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     targets = make_targets(sky, column, fov, overwrite_data)
     budget = parse_memory(memory_limit)
     options = beam_options(beam, diameter=diameter, element_model=element_model,
-                           beam_file=beam_file, ionosphere=ionosphere)
+                           beam_file=beam_file, ionosphere=ionosphere,
+                           beam_errors=beam_errors)
     _check_options(paths, targets, double_column)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
     runs = [runstate.new_run(make_plan(
