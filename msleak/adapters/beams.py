@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from msleak.beam.base import BEAM_NAMES, BeamModel, BeamName, IdentityBeam
-from msleak.beam.errors import BeamErrors, perturb_lofar
+from msleak.beam.errors import BeamErrors, perturb_lofar, perturb_phased_array
 from msleak.beam.ionosphere import IonosphereBeam
 from msleak.beam.lofar_array import LofarArray, lofar_array
 from msleak.errors import BeamUnavailable, InputError
@@ -119,9 +119,9 @@ def _model(model: BeamName, ms: Path, field_id, ddid, stations, options: dict) -
         if fast is not None:
             return fast
     if errors is not None:
-        raise InputError(f"{ms}: beam errors are modelled for LOFAR HBA through msleak's "
-                         "fast path only (`beam='everybeam'`, the default element model)",
-                         param="beam_errors")
+        raise InputError(f"{ms}: beam errors are modelled for LOFAR HBA and SKA-Low "
+                         "through msleak's fast paths only (`beam='everybeam'`, the default "
+                         "element model)", param="beam_errors")
     from msleak.adapters.everybeam import EveryBeamDirect
 
     return EveryBeamDirect(ms, element_model=element_model, field_id=field_row,
@@ -234,7 +234,8 @@ def mwa_from_ms(ms, *, field_id: int = 0, used_stations=None, element_model=None
 
 
 def ska_low_from_ms(ms: str | os.PathLike, element_model: str = "default",
-                    field_id: int = 0, used_stations=None, spw: int | None = None):
+                    field_id: int = 0, used_stations=None, spw: int | None = None,
+                    errors: BeamErrors | None = None):
     """The beam of an SKA-Low MS (TELESCOPE_NAME ``SKA-LOW`` with PHASED_ARRAY).
 
     The channels of SPECTRAL_WINDOW ``spw`` (all when None) must lie in the element
@@ -268,8 +269,9 @@ def ska_low_from_ms(ms: str | os.PathLike, element_model: str = "default",
         except InputError as err:
             raise InputError(f"{ms}: {err}") from None
     directions = read_beam_directions(ms, field_id)
-    return SkaLowBeam(read_phased_array(ms), directions.phase, directions.delay,
-                      read_antennas(ms).names, model.name, used_stations)
+    array, gains = perturb_phased_array(read_phased_array(ms), errors or BeamErrors())
+    return SkaLowBeam(array, directions.phase, directions.delay, read_antennas(ms).names,
+                      model.name, used_stations, element_gains=gains)
 
 
 def read_lofar_array(ms: str | os.PathLike, field_id: int = 0) -> LofarArray:
@@ -309,10 +311,10 @@ def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | Non
     from msleak.io.phased_array import has_phased_array
 
     telescope = read_telescope_name(ms).upper()
-    if telescope == "SKA-LOW" and has_phased_array(ms) and errors is None:
+    if telescope == "SKA-LOW" and has_phased_array(ms):
         spw = None if ddid is None else read_data_descriptions(ms)[ddid][0]
         return ska_low_from_ms(ms, element_model=element_model, field_id=field_id,
-                               used_stations=used, spw=spw)
+                               used_stations=used, spw=spw, errors=errors)
     if telescope != "LOFAR" or not has_lofar_tables(ms):
         log.info("%s: telescope %r without LOFAR tables: using EveryBeam directly (slow)", ms,
                  telescope)
@@ -326,6 +328,9 @@ def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | Non
         return None
     from msleak.beam.lofar_fast import LofarFastBeam
 
+    if errors is not None and errors.gains:
+        raise InputError(f"{ms}: element gain errors (amplitude, phase) are modelled for "
+                         "SKA-Low; LOFAR takes failed and rotation", param="beam_errors")
     return LofarFastBeam(array if errors is None else perturb_lofar(array, errors),
                          used_stations=used)
 
@@ -342,8 +347,8 @@ def _beam_errors(model: str, beam_errors):
     errors = beam_errors if isinstance(beam_errors, BeamErrors) else \
         BeamErrors.parse(beam_errors)
     if model != "everybeam":
-        raise InputError(f"beam_errors applies to `beam='everybeam'` (LOFAR HBA) only, not "
-                         f"beam {model!r}", param="beam_errors")
+        raise InputError(f"beam_errors applies to `beam='everybeam'` (LOFAR HBA, SKA-Low) "
+                         f"only, not beam {model!r}", param="beam_errors")
     return None if errors.none else errors
 
 

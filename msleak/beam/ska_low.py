@@ -213,12 +213,15 @@ class SkaLowBeam(BeamModel):
         A key of :data:`ELEMENT_MODELS` or ``default`` (``oskar_dipole_cos``).
     used_stations : int array, optional
         The ANTENNA rows the beam is for (default all).
+    element_gains : list of (nelem, 2) complex arrays, optional
+        Per station, element and feed a complex gain on the beam-former weight (errors of
+        the model, :func:`msleak.beam.errors.perturb_phased_array`); default 1.
     """
 
     name = "everybeam"
 
     def __init__(self, array, phase_centre, delay_dir, station_names=None,
-                 element_model: str = "default", used_stations=None):
+                 element_model: str = "default", used_stations=None, element_gains=None):
         self.model = check_element_model(element_model)
         super().__init__(len(array), phase_centre, station_names, used_stations)
         self.array = array
@@ -228,6 +231,7 @@ class SkaLowBeam(BeamModel):
         nmax = max(len(o) for o in array.element_offsets)
         self._pos = np.zeros((n, nmax, 3))
         self._w = np.zeros((n, 2, nmax))
+        self._wi = np.zeros((n, 2, nmax))
         self._nelem = np.array([len(o) for o in array.element_offsets], dtype=np.int64)
         self._up = np.ascontiguousarray(array.axes[:, 2])
         groups: dict[bytes, int] = {}
@@ -242,7 +246,11 @@ class SkaLowBeam(BeamModel):
             if np.any(count == 0):
                 log.warning("station %s has every element of a feed flagged: its beam is "
                             "zero for that feed", self.station_names[i])
-            self._w[i, :, :len(off)] = (on / np.maximum(count, 1)).T
+            weight = (on / np.maximum(count, 1)).T
+            if element_gains is not None:            # (nelem, 2) complex per station
+                weight = weight * np.asarray(element_gains[i]).T
+            self._w[i, :, :len(off)] = np.real(weight)
+            self._wi[i, :, :len(off)] = np.imag(weight)
             key = np.round(axes, 12).tobytes()
             if key not in groups:
                 groups[key] = len(self._group_axes)
@@ -266,7 +274,7 @@ class SkaLowBeam(BeamModel):
         set_freq, chan_set = element_frequency_sets(self.model, freq)
         uniform, df = _uniform_step(freq)
         used, local_group = np.unique(self._station_group[stations], return_inverse=True)
-        pos, w = self._pos[stations], self._w[stations]
+        pos, w, wi = self._pos[stations], self._w[stations], self._wi[stations]
         nelem, up = self._nelem[stations], self._up[stations]
         for it, t in enumerate(time):
             d, s0, ncp = self._directions(float(t), ra, dec)
@@ -275,6 +283,6 @@ class SkaLowBeam(BeamModel):
             for i, g in enumerate(used):
                 ej[i] = element_jones(self._response, self.model, self._group_axes[g],
                                       set_freq, d, north, east)
-            ska_low_station_kernel(d, s0, freq, uniform, df, pos, w, nelem, up,
+            ska_low_station_kernel(d, s0, freq, uniform, df, pos, w, wi, nelem, up,
                                    local_group.astype(np.int64), chan_set, ej, out[:, it])
         return out

@@ -34,8 +34,9 @@ _BLOCK = 16
 
 
 @njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
-def _array_factor(tau, n, wx, wy, freq, uniform, df, zr, zi, sr, si, afx, afy):
-    """afx[c], afy[c] = sum_j w_j exp(i tau_j freq[c]) for the X and Y weights.
+def _array_factor(tau, n, wx, wy, wxi, wyi, freq, uniform, df, zr, zi, sr, si, afx, afy):
+    """afx[c], afy[c] = sum_j w_j exp(i tau_j freq[c]) for the X and Y weights
+    w = (wx + i wxi), (wy + i wyi).
 
     ``zr, zi, sr, si`` are scratch arrays of at least ``n`` floats.
     """
@@ -52,10 +53,10 @@ def _array_factor(tau, n, wx, wy, freq, uniform, df, zr, zi, sr, si, afx, afy):
             for j in range(n):
                 a = zr[j]
                 b = zi[j]
-                xr += wx[j] * a
-                xi += wx[j] * b
-                yr += wy[j] * a
-                yi += wy[j] * b
+                xr += wx[j] * a - wxi[j] * b
+                xi += wx[j] * b + wxi[j] * a
+                yr += wy[j] * a - wyi[j] * b
+                yi += wy[j] * b + wyi[j] * a
                 zr[j] = a * sr[j] - b * si[j]
                 zi[j] = a * si[j] + b * sr[j]
             afx[c] = complex(xr, xi)
@@ -68,17 +69,17 @@ def _array_factor(tau, n, wx, wy, freq, uniform, df, zr, zi, sr, si, afx, afy):
             yi = 0.0
             for j in range(n):
                 b, a = sincos(tau[j] * freq[c])
-                xr += wx[j] * a
-                xi += wx[j] * b
-                yr += wy[j] * a
-                yi += wy[j] * b
+                xr += wx[j] * a - wxi[j] * b
+                xi += wx[j] * b + wxi[j] * a
+                yr += wy[j] * a - wyi[j] * b
+                yi += wy[j] * b + wyi[j] * a
             afx[c] = complex(xr, xi)
             afy[c] = complex(yr, yi)
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def ska_low_station_kernel(d, s0, freq, uniform, df, positions, weights, nelem, up,
-                           station_group, chan_set, element_jones, out):
+def ska_low_station_kernel(d, s0, freq, uniform, df, positions, weights, weights_im, nelem,
+                           up, station_group, chan_set, element_jones, out):
     """Station Jones matrices of one time slot, written into ``out``.
 
     Parameters
@@ -91,8 +92,9 @@ def ska_low_station_kernel(d, s0, freq, uniform, df, positions, weights, nelem, 
         Hz; if ``uniform``, ``freq[c] = freq[0] + c * df``.
     positions : (nstation, nelem_max, 3) float64
         Element offsets (m) of each output station, zero-padded.
-    weights : (nstation, 2, nelem_max) float64
-        Per feed (X, Y) and element the beam-former weight (normalised, zero-padded).
+    weights, weights_im : (nstation, 2, nelem_max) float64
+        Per feed (X, Y) and element the real and imaginary parts of the beam-former weight
+        (normalised, zero-padded; complex with element gain errors).
     nelem : (nstation,) int64
         Number of elements of each station.
     up : (nstation, 3) float64
@@ -137,8 +139,8 @@ def ska_low_station_kernel(d, s0, freq, uniform, df, positions, weights, nelem, 
             for j in range(n):
                 tau[j] = k * (dx * positions[s, j, 0] + dy * positions[s, j, 1]
                               + dz * positions[s, j, 2])
-            _array_factor(tau, n, weights[s, 0], weights[s, 1], freq, uniform, df,
-                          zr, zi, sr, si, afx, afy)
+            _array_factor(tau, n, weights[s, 0], weights[s, 1], weights_im[s, 0],
+                          weights_im[s, 1], freq, uniform, df, zr, zi, sr, si, afx, afy)
             for c in range(nchan):
                 e = chan_set[c]
                 for b in range(2):

@@ -108,7 +108,7 @@ def test_errors_equal_everybeam_with_the_same_errors_in_the_ms(lofar_ms, tmp_pat
 
 
 @pytest.mark.parametrize("kwargs,message", [
-    (dict(beam="dipole", beam_errors="failed=0.1"), "beam_errors applies to `beam='everybeam'`"),
+    (dict(beam="dipole", beam_errors="failed=0.1"), "beam_errors applies to `beam=.everybeam.` "),
     (dict(beam="everybeam", beam_errors="failed=1.5"), "failed must be a fraction in"),
     (dict(beam="everybeam", beam_errors="broken=1"), "give failed=FRACTION, rotation=DEG"),
     (dict(beam="everybeam", beam_errors="seed=x"), "seed 'x' is not a number"),
@@ -140,3 +140,117 @@ def test_predict_takes_the_errors(lofar_ms, tmp_path):
     order = np.argsort(predict(ms, str(sky), column=None).coords["row"].values)
     np.testing.assert_allclose(written, direct[order], rtol=0, atol=1e-6 * np.abs(direct).max())
     assert np.abs(direct - plain).max() > 1e-3 * np.abs(plain).max()
+
+
+# -- SKA-Low ----------------------------------------------------------------------------
+SKA_ERRORS = BeamErrors(failed=0.2, rotation_deg=4.0, seed=3)
+
+
+@pytest.fixture(scope="module")
+def ska_ms(tmp_path_factory):
+    """4 approximate SKA-Low stations of 256 elements, 1 time, 2 channels."""
+    from casa_ms import build_ms
+    from msleak.io.ms import read_antennas
+    from msleak.io.phased_array import write_phased_array
+    from msleak.telescope.ska_low import ska_low_layout, station_element_offsets
+
+    lay = ska_low_layout(n_stations=4, seed=2, core_diameter=300.0)
+    ms = build_ms(tmp_path_factory.mktemp("ska_err") / "ska.ms", telescope="SKA-LOW",
+                  enu=lay.enu, site_itrf=lay.reference, ntime=1, nchan=2, freq0_hz=150e6)
+    pos = read_antennas(ms).positions
+    axes, offsets = station_element_offsets(pos, seed=1)
+    write_phased_array(ms, pos, axes, offsets, [np.zeros((len(o), 2), bool) for o in offsets])
+    return ms
+
+
+def _ska_jones(beam, ms):
+    ra0, dec0 = beam.phase_centre
+    _, _, ra, dec = sin_grid(ra0, dec0, 30.0, 5)
+    return beam.jones(read_times(ms)[:1], read_spectral_windows(ms)[0].freq, ra.ravel(),
+                      dec.ravel())
+
+
+def test_ska_low_zero_errors_bit_for_bit(ska_ms):
+    plain = load_beam("everybeam", ska_ms)
+    zero = load_beam("everybeam", ska_ms, beam_errors="amplitude=0,phase=0,seed=4")
+    np.testing.assert_array_equal(_ska_jones(zero, ska_ms), _ska_jones(plain, ska_ms))
+
+
+def test_ska_low_failures_and_rotation_equal_everybeam(ska_ms, tmp_path):
+    pytest.importorskip("everybeam")
+    from msleak.beam.errors import perturb_phased_array
+    from msleak.io.measures import exact_j2000_to_itrf
+    from msleak.io.ms import read_antennas
+    from msleak.io.phased_array import read_phased_array, write_phased_array
+    from msleak._everybeam import import_everybeam
+
+    copy = shutil.copytree(ska_ms, tmp_path / "ska_err.ms")
+    array, gains = perturb_phased_array(read_phased_array(ska_ms), SKA_ERRORS)
+    assert gains is None
+    write_phased_array(copy, read_antennas(copy).positions, array.axes,
+                       array.element_offsets, array.element_flags)
+    fast = load_beam("everybeam", ska_ms, beam_errors=SKA_ERRORS)
+    ra0, dec0 = fast.phase_centre
+    _, _, ra, dec = sin_grid(ra0, dec0, 30.0, 5)
+    ra, dec = ra.ravel(), dec.ravel()
+    t = read_times(ska_ms)[:1]
+    freq = read_spectral_windows(ska_ms)[0].freq
+    jf = fast.jones(t, freq, ra, dec)
+    tel = import_everybeam().load_telescope(str(copy), element_response_model="oskar_dipole_cos")
+    d = exact_j2000_to_itrf(t[0], ra, dec)
+    s0 = exact_j2000_to_itrf(t[0], *fast.delay_dir)[0]
+    stations = np.arange(jf.shape[0], dtype=np.uint64)
+    jd = np.stack([np.asarray(tel.station_response(t, stations, freq, d[k], s0, s0))[0]
+                   for k in range(ra.size)], axis=2)                    # (st, chan, dir)
+    scale = np.abs(jd).max(axis=(-3, -2, -1), keepdims=True)
+    assert float((np.abs(jf[:, 0] - jd) / scale).max()) < 1e-6
+    plain = _ska_jones(load_beam("everybeam", ska_ms), ska_ms)[:, 0]
+    assert float((np.abs(plain - jd) / scale).max()) > 1e-2
+
+
+def test_ska_low_gains_are_complex_beam_former_weights(ska_ms):
+    """J(G) = J(Re G) + i J(Im G) (the weights enter linearly), and a gain common to every
+    element scales each feed's row of the Jones matrix."""
+    from msleak.beam.ska_low import SkaLowBeam
+    from msleak.io.ms import read_antennas, read_beam_directions
+    from msleak.io.phased_array import read_phased_array
+
+    array = read_phased_array(ska_ms)
+    directions = read_beam_directions(ska_ms, 0)
+    names = read_antennas(ska_ms).names
+    rng = np.random.default_rng(9)
+    gains = [1 + 0.3 * (rng.standard_normal((len(o), 2)) + 1j * rng.standard_normal((len(o), 2)))
+             for o in array.element_offsets]
+
+    def beam(g):
+        return SkaLowBeam(array, directions.phase, directions.delay, names, element_gains=g)
+
+    full = _ska_jones(beam(gains), ska_ms)
+    re = _ska_jones(beam([g.real for g in gains]), ska_ms)
+    im = _ska_jones(beam([g.imag for g in gains]), ska_ms)
+    np.testing.assert_allclose(full, re + 1j * im, rtol=0, atol=1e-12 * np.abs(full).max())
+    common = np.array([0.9 * np.exp(0.3j), 1.1 * np.exp(-0.2j)])
+    scaled = _ska_jones(beam([np.tile(common, (len(o), 1)) for o in array.element_offsets]),
+                        ska_ms)
+    plain = _ska_jones(beam(None), ska_ms)
+    np.testing.assert_allclose(scaled, common[:, None] * plain, rtol=0,
+                               atol=1e-12 * np.abs(plain).max())
+
+
+def test_ska_low_gain_errors_are_drawn_as_stated():
+    from msleak.beam.errors import perturb_phased_array
+    from msleak.io.phased_array import PhasedArray
+
+    n = 20000
+    array = PhasedArray(positions=np.zeros((1, 3)), axes=np.eye(3)[None],
+                        element_offsets=[np.zeros((n, 3))],
+                        element_flags=[np.zeros((n, 2), bool)])
+    _, gains = perturb_phased_array(array, BeamErrors(amplitude=0.05, phase_deg=3.0, seed=1))
+    g = gains[0]
+    assert np.std(np.abs(g)) == pytest.approx(0.05, rel=0.03)
+    assert np.degrees(np.std(np.angle(g))) == pytest.approx(3.0, rel=0.03)
+
+
+def test_lofar_refuses_gain_errors(lofar_ms):
+    with pytest.raises(InputError, match="element gain errors .* are modelled for SKA-Low"):
+        load_beam("everybeam", lofar_ms, beam_errors="amplitude=0.02")
