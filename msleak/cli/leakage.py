@@ -69,6 +69,11 @@ def _ints(ctx, param, value):
 @click.option("--expected", multiple=True, type=click.Path(),
               metavar="FILE", help="An observed PS product (repeatable): write the expected "
               "leakage PS (L_I_model/100)^2 x P_P,obs and its spherical average.")
+@click.option("--observed", multiple=True, type=click.Path(), metavar="FILE",
+              help="The PS product of the observation (its DATA, gridded as the inputs' "
+              "columns; once for all inputs or once per input): the predicted leakage beside "
+              "the observed Stokes I power, per bin and summed over the EoR window "
+              "(observed.csv, observed.png).")
 @click.option("--expected-labels", callback=_labels, metavar="L1,L2,...",
               help="Labels of the observed PS products [default: file names].")
 @click.option("--expected-model", type=click.Choice(get_args(ModelMode)),
@@ -108,6 +113,7 @@ def leakage(ps, output, overwrite, **options):
       leakage_hist.png     L_I histograms with the fitted Pareto model and medians
       expected_*.h5, expected_leakage.png   with --expected
       corrected_*.h5, corrected.png         with --correct
+      observed.csv, observed.png            with --observed
 
     \b
     Example (three fields of view of one field):

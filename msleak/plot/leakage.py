@@ -1,5 +1,6 @@
 """Figures of ``msleak leakage``: L_I maps beside P_P and P_I, L_I histograms with the
-Pareto model, and spherical spectra of the expected leakage and of the bias correction.
+Pareto model, spherical spectra of the expected leakage and of the bias correction, and the
+predicted leakage beside the observed Stokes I.
 Titles name the field, and each input by its label, MS column and uv cell size."""
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from msleak.leakage.stats import ParetoFit, pareto_density_percent
 from msleak.plot import new_figure, save_figure, uv_cell_text
 
 __all__ = ["plot_leakage_maps", "plot_leakage_histograms", "plot_expected_spherical",
-           "plot_corrected_spherical", "field_title", "input_title"]
+           "plot_corrected_spherical", "plot_observed", "field_title", "input_title"]
 
 _KPERP = r"$k_\perp$ [Mpc$^{-1}$]"
 _KPAR = r"$k_\parallel$ [Mpc$^{-1}$]"
@@ -313,4 +314,51 @@ def plot_corrected_spherical(corrected: Sequence[xr.Dataset], path: str | os.Pat
         ax.set_title(f"{field_name + ' ' if field_name else ''}{c.attrs.get('label', '')}")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
+    return save_figure(fig, path, pdf=pdf)
+
+
+def plot_observed(comparisons: Sequence[xr.Dataset], labels: Sequence[str],
+                  path: str | os.PathLike, pdf: bool = True, title: str = "") -> Path:
+    """2D panels per input: observed P_I, predicted leakage P_I (one colour scale for both)
+    and their ratio, with the horizon wedge; the EoR-window ratio in the title."""
+    n = len(comparisons)
+    fig, axes = new_figure(n, 3, figsize=(12.5, 3.3 * n + 0.4), squeeze=False,
+                           constrained_layout=True)
+    for i, (c, label) in enumerate(zip(comparisons, labels)):
+        xe, ye = _edges(c["k_perp"].values), _edges(c["k_par"].values)
+        units = _unit_tex(c.attrs.get("units", ""))
+        both = np.concatenate([c["power_observed"].values.ravel(),
+                               c["power_leak"].values.ravel()])
+        power_norm = _lognorm(both, np.isfinite(both))
+        for j, (var, clabel) in enumerate((("power_observed", f"observed $P_I${units}"),
+                                           ("power_leak", f"predicted leakage $P_I${units}"),
+                                           ("ratio", "predicted / observed"))):
+            ax = axes[i, j]
+            ax.set_facecolor("0.8")
+            vals = c[var].values
+            ok = np.isfinite(vals) & (vals > 0)
+            norm = power_norm if j < 2 else _lognorm(vals, ok, 0.5, 99.5)
+            im = ax.pcolormesh(xe, ye, np.ma.masked_where(~ok, vals), norm=norm,
+                               cmap="viridis" if j < 2 else "magma", shading="flat",
+                               rasterized=True)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlim(xe[0], xe[-1])
+            ax.set_ylim(ye[0], ye[-1])
+            slope = float(c.attrs.get("wedge_slope_horizon", 0.0))
+            if slope > 0:
+                x = np.geomspace(xe[-1] / 1e3, xe[-1], 50)
+                ax.plot(x, slope * x, color="k", ls="--", lw=1.6, label="horizon wedge")
+                ax.plot(x, slope * x, color="w", ls="--", lw=0.7)
+            _tidy_log_axis(ax.xaxis, xe[0], xe[-1])
+            _tidy_log_axis(ax.yaxis, ye[0], ye[-1])
+            fig.colorbar(im, ax=ax, pad=0.02).set_label(clabel)
+            ax.set_xlabel(_KPERP)
+            ax.set_ylabel(f"{label}\n{_KPAR}" if j == 0 else _KPAR)
+            if j == 2:
+                ratio = float(c.attrs["window_ratio"])
+                ax.set_title(f"EoR window: {_number(ratio) if np.isfinite(ratio) else 'no'}"
+                             " x the observed power")
+    if title:
+        fig.suptitle(title)
     return save_figure(fig, path, pdf=pdf)

@@ -14,6 +14,7 @@ import xarray as xr
 from msleak.errors import InputError
 from msleak.io.products import call_record, history_lines, open_product, stamp
 from msleak.leakage.analysis import analyse
+from msleak.leakage.compare import compare_observed
 from msleak.leakage.fraction import NegativePolicy, StatsFrom
 from msleak.leakage.observed import ModelMode, bias_correct, expected_leakage
 from msleak.verbs.leakage_files import default_labels, refuse_existing, write_leakage
@@ -35,7 +36,8 @@ def leakage(ps: PsInput | Sequence[PsInput], *, labels: Sequence[str] | None = N
             expected: PsInput | Sequence[PsInput] | None = None,
             expected_labels: Sequence[str] | None = None, expected_model: ModelMode = "auto",
             leakage_rel_error: float | None = None,
-            correct: PsInput | Sequence[PsInput] | None = None, n_boot: int = 200,
+            correct: PsInput | Sequence[PsInput] | None = None,
+            observed: PsInput | Sequence[PsInput] | None = None, n_boot: int = 200,
             bootstrap_block: int = 2, seed: int = 0, output: str | os.PathLike | None = None,
             overwrite: bool = False, figures: bool = True, pdf: bool = True) -> xr.Dataset:
     """Fractional leakage L_I = 100 sqrt(P_I / P_P) of PS products (``msleak leakage``).
@@ -53,6 +55,11 @@ def leakage(ps: PsInput | Sequence[PsInput], *, labels: Sequence[str] | None = N
         their Stokes I; written as ``expected_<label>.h5``, ``corrected_<label>.h5``, so
         they need ``output`` (in memory: :func:`~msleak.leakage.observed.expected_leakage`,
         :func:`~msleak.leakage.observed.bias_correct`).
+    observed : path or Dataset, or a sequence of them, optional
+        PS products of the observation (its DATA) on the inputs' bins, one for every input
+        or one per input: the predicted leakage beside the observed Stokes I power, written
+        as ``observed.csv`` and ``observed.png`` (in memory:
+        :func:`msleak.leakage.compare.compare_observed`).
     output : path, optional
         Directory for stats.csv, estimates.csv, stats.md, leakage.h5 and the figures
         (PNG, and PDF with ``pdf``); None: return only.
@@ -76,6 +83,7 @@ def leakage(ps: PsInput | Sequence[PsInput], *, labels: Sequence[str] | None = N
         refuse_existing(output, overwrite)
     command = call_record(leakage, given)
     datasets, names = _open_all(inputs, "PS input")
+    comparisons = _compare(datasets, names, _as_list(observed), output)
     observed, obs_names = _open_all(obs_inputs or corr_inputs, "observed PS")
     observed_i, corr_names = ((_open_all(corr_inputs, "observed PS") if obs_inputs
                                else (observed, obs_names)))
@@ -92,8 +100,25 @@ def leakage(ps: PsInput | Sequence[PsInput], *, labels: Sequence[str] | None = N
         result, observed, obs_labels, obs_names, observed_i if corr_inputs else [],
         corr_names, expected_model, leakage_rel_error)
     write_leakage(result, exp_results if obs_inputs else [], corr_results, output,
-                  figures=figures, pdf=pdf)
+                  figures=figures, pdf=pdf, observed=comparisons)
     return result
+
+
+def _compare(datasets: list, names: list, observed: list, output) -> list:
+    """The predicted leakage of every input beside its observed PS (one for all, or one
+    per input)."""
+    if not observed:
+        return []
+    if output is None:
+        raise InputError("the comparison with the observation is written to files: give "
+                         "them a directory (output)", param=("observed", "output"))
+    if len(observed) not in (1, len(datasets)):
+        raise InputError(f"{len(observed)} observed PS for {len(datasets)} inputs; give one "
+                         "for all or one per input", param="observed")
+    obs, obs_names = _open_all(observed, "observed PS")
+    pairs = [(j if len(obs) > 1 else 0) for j in range(len(datasets))]
+    return [compare_observed(ds, obs[j], name, obs_names[j])
+            for ds, name, j in zip(datasets, names, pairs)]
 
 
 def _observed_results(result: xr.Dataset, observed, labels, names, observed_i, names_i,

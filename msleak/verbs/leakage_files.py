@@ -15,6 +15,7 @@ import xarray as xr
 from msleak.errors import InputError
 from msleak.io.products import history_lines, save_product
 from msleak.leakage.analysis import STAT_COLUMNS
+from msleak.leakage.compare import COMPARE_COLUMNS
 from msleak.plot import leakage as plots
 
 __all__ = ["OUTPUT_FILES", "write_leakage", "refuse_existing",
@@ -193,9 +194,12 @@ def first_realisation(result: xr.Dataset) -> xr.Dataset:
 
 def write_leakage(result: xr.Dataset, expected: Sequence[xr.Dataset],
                   corrected: Sequence[xr.Dataset], outdir: str | os.PathLike, *,
-                  figures: bool = True, pdf: bool = True) -> dict[str, Path]:
+                  figures: bool = True, pdf: bool = True,
+                  observed: Sequence[xr.Dataset] = ()) -> dict[str, Path]:
     """Write the tables, products (their ``history`` that of the Datasets plus this
-    command) and figures of a leakage result into ``outdir``; returns them by role."""
+    command) and figures of a leakage result into ``outdir``, with the comparisons
+    ``observed`` (:func:`msleak.leakage.compare.compare_observed`, one per input); returns
+    them by role."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     files = {"stats_csv": write_stats_csv(result, outdir / "stats.csv"),
@@ -209,6 +213,12 @@ def write_leakage(result: xr.Dataset, expected: Sequence[xr.Dataset],
             files[f"{kind}_{lab}"] = save_product(
                 ds, outdir / f"{kind}_{_safe(lab)}.h5", f"leakage_{kind}", overwrite=True,
                 history=history_lines(ds.attrs))
+    labels = [str(x) for x in np.asarray(result["label"].values).ravel()]
+    if observed:
+        files["observed_csv"] = _write_observed_csv(observed, labels, outdir / "observed.csv")
+    if figures and observed:
+        files["observed_png"] = plots.plot_observed(observed, labels, outdir / "observed.png",
+                                                    pdf, plots.field_title(result))
     if figures:
         files["maps_png"] = plots.plot_leakage_maps(first_realisation(result),
                                                     outdir / "leakage_maps.png", pdf)
@@ -222,3 +232,16 @@ def write_leakage(result: xr.Dataset, expected: Sequence[xr.Dataset],
             files["corrected_png"] = plots.plot_corrected_spherical(
                 corrected, outdir / "corrected.png", pdf, name)
     return files
+
+
+def _write_observed_csv(observed: Sequence[xr.Dataset], labels: Sequence[str],
+                        path: Path) -> Path:
+    """One row per input: the predicted leakage and the observed Stokes I power summed over
+    the EoR window and over all bins, and their ratios (:data:`COMPARE_COLUMNS`)."""
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["label", *COMPARE_COLUMNS])
+        for c, label in zip(observed, labels):
+            writer.writerow([label, *(c.attrs[k] if k == "units" else f"{c.attrs[k]:.6g}"
+                                      for k in COMPARE_COLUMNS)])
+    return path
