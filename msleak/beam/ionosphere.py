@@ -157,6 +157,18 @@ class IonosphereBeam(BeamModel):
         jones = jones @ self.sky_rotation(time, freq, stations)[:, :, :, None]
         return jones.astype(dtype, copy=False)
 
+    def _jones_factors(self, time, freq, ra, dec, stations, dtype):
+        """The model's factors with R on the element matrices, where every station has the
+        same RM (one screen over the array); else None (full Jones matrices)."""
+        factors = self.model._jones_factors(time, freq, ra, dec, stations, dtype)
+        if factors is None:
+            return None
+        rotation = self.sky_rotation(time, freq, stations)
+        if not np.all(rotation == rotation[:1]):
+            return None
+        element = factors.element @ rotation[0][None, :, :, None]
+        return factors._replace(element=element.astype(factors.element.dtype, copy=False))
+
     def jones(self, time_mjd_s, freq_hz, ra, dec, *, stations=None,
               centre_correction: bool = False, dtype=np.complex128) -> np.ndarray:
         if not centre_correction:

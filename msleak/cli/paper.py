@@ -66,6 +66,19 @@ def _observed(ctx, param, values):
               help="Override the integration time [120 s; --quick: 600 s].")
 @click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
               help="Override the number of channels of the MSs and the sky [50].")
+@click.option("--ionosphere", default=None, metavar="random|CSV",
+              help="Add the instrument's budget runs with ionospheric Faraday rotation: "
+              "random (a drifting screen, one per --instrument-seeds realisation) or a CSV "
+              "table of RMs (msleak predict --ionosphere).")
+@click.option("--beam-errors", default=None, metavar="failed=F,rotation=DEG",
+              help="Add budget runs with beam-model errors (msleak predict --beam-errors, "
+              "without seed: one per realisation; failed is a fraction, rotation in degrees).")
+@click.option("--noise", "noise_sefd", type=float, default=None, metavar="JY",
+              help="Add budget runs with thermal noise of this SEFD (Jy), gridded in "
+              "even/odd halves (msleak noise).")
+@click.option("--instrument-seeds", type=click.IntRange(1, None), default=3,
+              show_default=True, metavar="N",
+              help="Realisations of each corruption in the budget (docs/paper.md).")
 @study_double_option
 @study_workers_option("the two fields' predicts overlap, as do the grid and beam maps of "
                       "a field")
@@ -74,7 +87,8 @@ def _observed(ctx, param, values):
               "(without it an existing OUTDIR resumes).")
 @click.pass_context
 def paper(ctx, outdir, quick, resolution, seed, seeds, fields, beam, observed, stations,
-          duration_h, interval_s, nchan, double, workers, overwrite):
+          duration_h, interval_s, nchan, ionosphere, beam_errors, noise_sefd,
+          instrument_seeds, double, workers, overwrite):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
@@ -87,12 +101,15 @@ def paper(ctx, outdir, quick, resolution, seed, seeds, fields, beam, observed, s
       msleak paper study/ --quick
       msleak paper study_observed/ --resolution observed
       msleak paper study/ --observed ncp=ncp_Q.fits,ncp_U.fits
+      msleak paper study/ --ionosphere random --beam-errors failed=0.05,rotation=1 \\
+          --noise 2500
     """
     cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed, seeds=seeds,
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
                       interval_s=interval_s, nchan=nchan, double=double,
-                      resolution=resolution)
+                      resolution=resolution, ionosphere=ionosphere, beam_errors=beam_errors,
+                      noise_sefd=noise_sefd, instrument_seeds=instrument_seeds)
     with study_invoker(ctx, "paper", workers) as (invoke, workers):
         report = run_study(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"report: {report}")

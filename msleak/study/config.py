@@ -68,8 +68,17 @@ class StudyConfig:
     double: bool = True
     resolution: str = "paper"
     sky_fov_deg: float | None = None
+    #: what a real observation adds (docs/paper.md, "The instrument's budget"): a CSV table
+    #: of RMs or ``"random"`` (``random:N`` per realisation), beam errors without their
+    #: seed (``"failed=F,rotation=DEG"``), thermal noise (SEFD, Jy); each is predicted
+    #: ``instrument_seeds`` times (a CSV table once) at the largest field of view
+    ionosphere: str | None = None
+    beam_errors: str | None = None
+    noise_sefd: float | None = None
+    instrument_seeds: int = 3
 
     def __post_init__(self):
+        self._check_instrument()
         if self.resolution not in RESOLUTIONS:
             raise InputError(f"unknown resolution {self.resolution!r}: "
                              f"{' or '.join(RESOLUTIONS)}")
@@ -80,6 +89,42 @@ class StudyConfig:
             if not 0 < self.sky_fov_deg <= SKY_FOV_DEG:
                 raise InputError(f"sky_fov_deg {self.sky_fov_deg:g}: must be within "
                                  f"0..{SKY_FOV_DEG:g} deg")
+
+    def _check_instrument(self) -> None:
+        if self.instrument_seeds < 1:
+            raise InputError(f"instrument_seeds must be at least 1, got "
+                             f"{self.instrument_seeds}", param="instrument_seeds")
+        if self.ionosphere is not None and self.ionosphere != "random" \
+                and not Path(self.ionosphere).is_file():
+            raise InputError(f"ionosphere {self.ionosphere!r} is neither random nor a CSV "
+                             "table of RMs", param="ionosphere")
+        if self.beam_errors is not None:
+            from msleak.beam.errors import BeamErrors
+
+            if "seed" in self.beam_errors:
+                raise InputError("the study draws beam_errors' seed per realisation: give "
+                                 "failed, rotation, amplitude and phase only",
+                                 param="beam_errors")
+            BeamErrors.parse(self.beam_errors)
+        if self.noise_sefd is not None and not self.noise_sefd > 0:
+            raise InputError(f"noise_sefd must be positive (Jy), got {self.noise_sefd}",
+                             param="noise_sefd")
+
+    def corruptions(self) -> list[tuple[str, int, list]]:
+        """``(kind, realisation, predict options)`` of the instrument's budget runs; the
+        noise runs' options are empty (the noise is added after predict)."""
+        runs = []
+        if self.ionosphere is not None:
+            n = self.instrument_seeds if self.ionosphere == "random" else 1
+            runs += [("ionosphere", r, ["--ionosphere", f"random:{r}" if
+                                        self.ionosphere == "random" else self.ionosphere])
+                     for r in range(1, n + 1)]
+        if self.beam_errors is not None:
+            runs += [("beam_errors", r, ["--beam-errors", f"{self.beam_errors},seed={r}"])
+                     for r in range(1, self.instrument_seeds + 1)]
+        if self.noise_sefd is not None:
+            runs += [("noise", r, []) for r in range(1, self.instrument_seeds + 1)]
+        return runs
 
     @property
     def simulate_args(self) -> list:

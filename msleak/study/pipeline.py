@@ -109,6 +109,67 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
     return steps
 
 
+def _budget_steps(cfg: StudyConfig, fld: str, crops: dict) -> list[Step]:
+    """The instrument's budget runs of one field (docs/paper.md, "The instrument's budget"):
+    the first sky at the largest field of view predicted through each corruption and
+    realisation (noise: the ideal sky, then noise added, gridded in even/odd halves), each
+    gridded, transformed and averaged, and one leakage result per corruption."""
+    runs = cfg.corruptions()
+    if not runs:
+        return []
+    fdir = Path(cfg.outdir) / fld
+    ms = fdir / f"{fld}.ms"
+    label = cfg.fields_of_view[0][0]
+    sky = crops[cfg.seed, label]
+    base = ["predict", ms, "--beam", cfg.beam, *predict_precision(cfg.double),
+            *cfg.predict_args]
+    column = {(kind, r): f"MODEL_{kind.upper()}{r}" for kind, r, _ in runs}
+    steps, previous = [], f"beam-{fld}"
+    noise = [(kind, r) for kind, r, _ in runs if kind == "noise"]
+    for kind, r, extra in runs:
+        if kind == "noise":
+            continue
+        steps.append(Step(f"predict-{fld}-{kind}{r}", [*base, "--sky", sky, "--column",
+                                                        column[kind, r], *extra],
+                          inputs=[sky], outputs=[ms], after=[previous]))
+        previous = steps[-1].name
+    if noise:
+        pairs = [a for key in noise for a in ("--sky", sky, "--column", column[key])]
+        steps.append(Step(f"predict-{fld}-noise", [*base, *pairs], inputs=[sky],
+                          outputs=[ms], after=[previous]))
+        previous = steps[-1].name
+        for key in noise:
+            steps.append(Step(f"noise-{fld}-{key[1]}", [
+                "noise", ms, "--sefd", f"{cfg.noise_sefd:g}", "--seed", str(key[1]),
+                "--column", column[key], "--add"], outputs=[ms], after=[previous]))
+            previous = steps[-1].name
+    grids = {kind: [(k, r) for k, r, _ in runs if k == kind] for kind, _, _ in runs}
+    for kind, keys in grids.items():
+        split = ["--split", "even-odd"] if kind == "noise" else []
+        args = ["grid", ms, "--overwrite", *cfg.grid_args, *split]
+        for key in keys:
+            args += ["--column", column[key], "-o", fdir / f"grid_{kind}{key[1]}.h5"]
+        steps.append(Step(f"grid-{fld}-{kind}", args, reads=[ms], after=[previous],
+                          outputs=[fdir / f"grid_{kind}{r}.h5" for _, r in keys]))
+        ps_files = []
+        for _, r in keys:
+            delay, ps = fdir / f"delay_{kind}{r}.h5", fdir / f"ps_{kind}{r}.h5"
+            steps += [Step(f"transform-{fld}-{kind}{r}", ["transform",
+                           fdir / f"grid_{kind}{r}.h5", "-o", delay, "--overwrite"],
+                           inputs=[fdir / f"grid_{kind}{r}.h5"], outputs=[delay]),
+                      Step(f"ps-{fld}-{kind}{r}", ["ps", delay, "-o", ps, "--overwrite",
+                                                   *cfg.ps_args],
+                           inputs=[delay], outputs=[ps])]
+            ps_files.append(ps)
+        leak = fdir / f"leakage_{kind}"
+        steps.append(Step(f"leakage-{fld}-{kind}", [
+            "leakage", *ps_files, "--labels", ",".join([label] * len(keys)),
+            "--realisations", ",".join(str(r) for _, r in keys), "--field-name",
+            fld.upper(), "-o", leak, "--overwrite"], inputs=ps_files,
+            outputs=[leak / "stats.csv", leak / "estimates.csv"]))
+    return steps
+
+
 def study_steps(cfg: StudyConfig) -> list[Step]:
     """Every step of the study, in order."""
     out = Path(cfg.outdir)
@@ -116,6 +177,8 @@ def study_steps(cfg: StudyConfig) -> list[Step]:
     steps, crops = _sky_steps(cfg, out / "sky", fig)
     for fld in cfg.fields:
         steps += _field_steps(cfg, fld, crops, fig)
+    for fld in cfg.fields:
+        steps += _budget_steps(cfg, fld, crops)
     return steps
 
 

@@ -150,6 +150,47 @@ def _summary(estimates: list, seeds: int) -> list[str]:
                     f"({float(t['estimate_err']):.2g}) |" for fld, t in estimates] + [""]
 
 
+#: the instrument's corruptions in the budget table: kind -> what the row says
+_BUDGET_KINDS = {"ionosphere": "ionospheric Faraday rotation", "beam_errors": "beam-model errors",
+                 "noise": "thermal noise (even/odd cross power)"}
+
+
+def _spread(values: list[float]) -> str:
+    """mean ± standard deviation (± 0 for one value)."""
+    import numpy as np
+
+    v = np.asarray(values, dtype=float)
+    return f"{v.mean():.3g} ± {v.std():.2g}" if v.size > 1 else f"{v[0]:.3g}"
+
+
+def _budget(cfg: StudyConfig, fdir: Path) -> list[str]:
+    """The instrument's budget table of one field: L_I at the largest field of view for the
+    ideal instrument (the first sky), over the sky realisations, and over the realisations
+    of each corruption of the first sky (docs/paper.md, "The instrument's budget")."""
+    label = cfg.fields_of_view[0][0]
+    ideal = [r for r in _stats_rows(fdir / "leakage" / "stats.csv") if r.get("label") == label]
+    rows = []
+    if ideal:
+        first = [r for r in ideal if str(r.get("realisation", cfg.seed)) == str(cfg.seed)]
+        rows.append(("ideal instrument, first sky", first or ideal[:1]))
+        if len(ideal) > 1:
+            rows.append(("sky realisations (ideal instrument)", ideal))
+    corrupted = [(f"{text}, first sky", found) for kind, text in _BUDGET_KINDS.items()
+                 if (found := _stats_rows(fdir / f"leakage_{kind}" / "stats.csv"))]
+    if not corrupted:
+        return []
+    rows += corrupted
+    lines = [f"The instrument's budget at {label} (docs/paper.md): L_I over the 3D voxels, "
+             "mean ± standard deviation over the realisations of each source of variation "
+             "alone (percent):", "",
+             "| varied | realisations | data median | Pareto median |", "|---|---|---|---|"]
+    for name, found in rows:
+        lines.append(f"| {name} | {len(found)} | "
+                     f"{_spread([float(r['median']) for r in found])} | "
+                     f"{_spread([float(r['pareto_median']) for r in found])} |")
+    return lines + [""]
+
+
 def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
     """Write ``OUTDIR/report.md`` and return its path."""
     out = Path(cfg.outdir)
@@ -186,6 +227,7 @@ def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
             if est:
                 lines += _estimate_text(est)
                 estimates.append((fld, est[-1]))
+        lines += _budget(cfg, fdir)
         for name, caption in (("leakage/leakage_maps.png", "P_P, P_I and L_I with wedges"),
                               ("leakage/leakage_hist.png", "L_I histograms and Pareto fits"),
                               ("leakage/expected_leakage.png", "expected leakage")):

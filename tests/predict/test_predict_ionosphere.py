@@ -175,3 +175,23 @@ def test_the_ionosphere_setting_names_its_flag(ms, tmp_path):
     result = CliRunner().invoke(cli, ["predict", str(ms), "--sky", str(sky), "--beam", "none",
                                       "--column", "M_IONO", "--ionosphere", "random:x"])
     assert "--ionosphere 'random:x': give random:SEED" in one_error_line(result)
+
+
+def test_one_screen_keeps_the_lofar_factors(small_lofar_ms, tmp_path):
+    """With the same RM at every station the LOFAR model keeps its per-station factors,
+    which multiply to the full Jones matrices of the rotated beam."""
+    from msleak.adapters.beams import load_beam
+
+    csv = _constant(small_lofar_ms, tmp_path, 0.9)
+    beam = load_beam("everybeam", small_lofar_ms, ionosphere=csv)
+    ra0, dec0 = beam.phase_centre
+    ra, dec = ra0 + np.array([0.0, 0.03, -0.05]), dec0 + np.array([0.0, 0.02, 0.01])
+    times, freq = _times(small_lofar_ms)[:2], channel_freqs(small_lofar_ms)
+    factors = beam.jones_factors(times, freq, ra, dec)
+    full = beam.jones(times, freq, ra, dec)
+    assert factors is not None
+    np.testing.assert_allclose(factors.full(), full, rtol=0, atol=1e-12 * np.abs(full).max())
+    plain = load_beam("everybeam", small_lofar_ms).jones(times, freq, ra, dec)
+    rot = faraday_rotation(np.full((full.shape[0], times.size), 0.9), freq)
+    np.testing.assert_allclose(full, plain @ rot[:, :, :, None], rtol=0,
+                               atol=1e-12 * np.abs(full).max())

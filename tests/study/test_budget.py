@@ -1,0 +1,79 @@
+"""The instrument's budget of ``msleak paper`` (--ionosphere, --beam-errors, --noise): the
+steps it adds, and against answers known in advance: an ionosphere of RM 0 and beam errors
+of zero give the ideal instrument's L_I, and the report's table holds the medians the
+leakage steps wrote."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from msleak.cli import cli
+from msleak.errors import InputError
+from msleak.study.config import StudyConfig
+from msleak.study.pipeline import study_steps
+
+TINY = ["--field", "3c196", "--stations", "CS00[1-4]HBA*", "--duration", "1",
+        "--interval", "600", "--nchan", "16", "--workers", "1"]
+
+
+def test_budget_steps(tmp_path):
+    cfg = StudyConfig(outdir=tmp_path, fields=("3c196",), ionosphere="random",
+                      beam_errors="failed=0.1,rotation=1", noise_sefd=2500.0,
+                      instrument_seeds=2)
+    steps = {s.name: s for s in study_steps(cfg)}
+    args = [str(a) for a in steps["predict-3c196-ionosphere2"].args]
+    assert args[args.index("--ionosphere") + 1] == "random:2"
+    args = [str(a) for a in steps["predict-3c196-beam_errors1"].args]
+    assert args[args.index("--beam-errors") + 1] == "failed=0.1,rotation=1,seed=1"
+    noise = [str(a) for a in steps["noise-3c196-2"].args]
+    assert noise[:2] == ["noise", str(tmp_path / "3c196" / "3c196.ms")] and "--add" in noise
+    assert "even-odd" in [str(a) for a in steps["grid-3c196-noise"].args]
+    leak = [str(a) for a in steps["leakage-3c196-ionosphere"].args]
+    assert leak[leak.index("--realisations") + 1] == "1,2"
+    assert not any(name.startswith("predict-3c196-") for name in
+                   (s.name for s in study_steps(StudyConfig(outdir=tmp_path,
+                                                            fields=("3c196",)))))
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    (dict(beam_errors="failed=0.1,seed=3"), "draws beam_errors' seed per realisation"),
+    (dict(beam_errors="broken=1"), "give failed=FRACTION"),
+    (dict(ionosphere="nowhere.csv"), "neither random nor a CSV table"),
+    (dict(noise_sefd=0.0), "noise_sefd must be positive"),
+    (dict(instrument_seeds=0), "instrument_seeds must be at least 1"),
+])
+def test_bad_budget_settings(tmp_path, kwargs, message):
+    with pytest.raises(InputError, match=message):
+        StudyConfig(outdir=tmp_path, **kwargs)
+
+
+def _medians(path):
+    with open(path) as fh:
+        return [float(r["median"]) for r in csv.DictReader(fh) if r["label"] == "15deg"]
+
+
+def test_null_corruptions_give_the_ideal_leakage_and_the_report_tabulates_them(tmp_path):
+    out = tmp_path / "study"
+    rm0 = tmp_path / "rm0.csv"
+    rm0.write_text("time,station,rm\n0,*,0\n1e12,*,0\n")
+    result = CliRunner().invoke(cli, ["-q", "paper", str(out), *TINY, "--ionosphere",
+                                      str(rm0), "--beam-errors", "failed=0,rotation=0",
+                                      "--noise", "3000", "--instrument-seeds", "2"])
+    assert result.exit_code == 0, result.output
+    fdir = out / "3c196"
+    ideal = _medians(fdir / "leakage" / "stats.csv")
+    assert len(ideal) == 1
+    for kind in ("ionosphere", "beam_errors"):
+        np.testing.assert_allclose(_medians(fdir / f"leakage_{kind}" / "stats.csv"),
+                                   ideal[0], rtol=1e-12)
+    noisy = _medians(fdir / "leakage_noise" / "stats.csv")
+    assert len(noisy) == 2 and noisy[0] != noisy[1]
+    report = (out / "report.md").read_text()
+    assert "The instrument's budget at 15deg" in report
+    assert f"| ideal instrument, first sky | 1 | {ideal[0]:.3g} |" in report
+    assert f"| thermal noise (even/odd cross power), first sky | 2 | " \
+           f"{np.mean(noisy):.3g} ± {np.std(noisy):.2g} |" in report
