@@ -83,7 +83,7 @@ def import_everybeam():
     except ImportError as err:
         raise ConfigurationError(
             "the everybeam package is not importable; install it with "
-            "`pip install everybeam==0.9.0` or use beam='dipole'") from err
+            "`pip install everybeam==0.9.0` or use `beam='dipole'`") from err
     if not (Path(os.environ["EVERYBEAM_DATADIR"]) / "HamakerHBACoeff.h5").exists():
         raise ConfigurationError(
             f"EveryBeam coefficient files not found in {os.environ['EVERYBEAM_DATADIR']}; "

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Print the catalogue of every error message of msleak (the last part of docs/errors.md).
 
-Reads the source with :mod:`ast` (nothing of msleak is imported, standard library only):
+Reads the source with :mod:`ast` (of msleak only the command line's rewrite of parameter
+names, :func:`msleak.cli._flags.rewrite`, is imported):
 every ``raise`` of one of msleak's error classes (``MsleakError`` and its subclasses:
 ``InputError``, ``ConfigurationError``, ``BeamUnavailable``, ``DegridRefused``, ...), every
 such error a function builds and returns (``return MsleakError(...)``), and the
@@ -40,6 +41,8 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from msleak.cli._flags import ALIASES, rewrite
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "msleak"
@@ -502,24 +505,6 @@ def render_call(node: ast.Call, ctx: Context, top: bool) -> list[Tpl]:
 
 # -- parameters and the command line's flags ---------------------------------------------
 
-def flags_module(modules: dict[str, Module]) -> tuple[dict[str, str], re.Pattern]:
-    """ALIASES and _PATH of msleak/cli/_flags.py."""
-    tree = modules["cli/_flags.py"].tree
-    aliases, path = {}, None
-    for node in tree.body:
-        target = node.targets[0] if isinstance(node, ast.Assign) else (
-            node.target if isinstance(node, ast.AnnAssign) else None)
-        if not isinstance(target, ast.Name):
-            continue
-        if target.id == "ALIASES":
-            aliases = ast.literal_eval(node.value)
-        elif target.id == "_PATH":
-            path = re.compile(ast.literal_eval(node.value.args[0]))
-    return aliases, path
-
-
-ALIASES: dict[str, str] = {}
-PATH_WORD: re.Pattern = re.compile(r"^$")
 SETTING = re.compile(r"`([a-z_][a-z0-9_]*)=")
 #: section -> the commands whose errors it lists (for options named unlike their flag)
 SECTION_COMMANDS = {SIMULATE: ("simulate",), SKY: ("sky",), SKYMODEL: ("sky", "predict"),
@@ -594,20 +579,9 @@ def flag_for(param: str, section: str = "") -> str:
 
 
 def as_flags(text: str, params: list[str], section: str = "") -> str:
-    """msleak/cli/_flags.py:as_flags on a message (fields replaced by private characters)."""
-    for param in params:
-        flag = flag_for(param, section)
-        text, settings = re.subn(
-            rf"`{re.escape(param)}=(?:'([^'`]*)'|\"([^\"`]*)\"|([^`]*))`",
-            lambda m: f"`{flag} {next(g for g in m.groups() if g is not None)}`", text)
-        quoted = f"`{param}`"
-        if quoted in text:
-            text = text.replace(quoted, flag)
-        elif not settings:
-            word = re.compile(rf"(?<![\w\-`'.]){re.escape(param)}(?![\w\-]|\.\w)")
-            text = re.sub(r"\S+", lambda m: m.group(0) if PATH_WORD.match(m.group(0))
-                          else word.sub(flag, m.group(0)), text)
-    return text
+    """msleak/cli/_flags.py:rewrite on a message (fields replaced by private characters),
+    with the flags of the section's commands."""
+    return rewrite(text, params, lambda p: flag_for(p, section))
 
 
 def cli_template(tpl: Tpl, params: list[str], section: str) -> Tpl:
@@ -988,9 +962,8 @@ def catalogue(sites: list[Site], index: TestIndex) -> tuple[str, dict[str, int]]
 
 
 def main(argv: list[str]) -> int:
-    global ALIASES, PATH_WORD, COMMAND_OPTIONS
+    global COMMAND_OPTIONS
     modules = load_modules()
-    ALIASES, PATH_WORD = flags_module(modules)
     COMMAND_OPTIONS = command_options(modules)
     sites = find_sites(modules)
     text, counts = catalogue(sites, TestIndex(test_literals()))

@@ -183,10 +183,10 @@ class LofarFastBeam(BeamModel):
     def __init__(self, array: LofarArray, element_model: str = "hamaker", used_stations=None):
         if element_model != "hamaker":
             raise InputError(f"the fast LOFAR beam supports the 'hamaker' element model only, "
-                             f"not {element_model!r}; use beam='everybeam-direct'")
+                             f"not {element_model!r}; use `beam='everybeam-direct'`")
         if any(f.name == "LBA" for s in array.stations for f in s.fields):
             raise InputError("the fast LOFAR beam handles HBA fields only; this MS has LBA "
-                             "fields: use beam='everybeam-direct'")
+                             "fields: use `beam='everybeam-direct'`")
         super().__init__(len(array.stations), array.phase_centre,
                          [s.name for s in array.stations], used_stations)
         eb = import_everybeam()

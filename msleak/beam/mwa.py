@@ -164,7 +164,7 @@ class MwaBeam(BeamModel):
             what = ("the file's" if self._fee_freqs is not None else "the MWA receiver's")
             raise InputError(f"the {self.element_model} MWA beam covers {lo / 1e6:g}-"
                              f"{hi / 1e6:g} MHz ({what} band); {bad[0] / 1e6:g} MHz requested "
-                             f"({bad.size} channel(s) outside); use beam='dipole' there")
+                             f"({bad.size} channel(s) outside); use `beam='dipole'` there")
 
     def _evaluation_freqs(self, freq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distinct frequencies hyperbeam is called at and, per channel, its index."""

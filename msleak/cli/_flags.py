@@ -14,7 +14,7 @@ import click
 
 from msleak.errors import MsleakError
 
-__all__ = ["ALIASES", "flag_for", "as_flags"]
+__all__ = ["ALIASES", "flag_for", "as_flags", "rewrite"]
 
 #: a word that is a path (absolute, home- or dot-relative, or with a folder and an
 #: extension): parameter names inside it are left alone
@@ -41,13 +41,18 @@ def flag_for(param: str, command: click.Command | None = None) -> str:
 
 
 def as_flags(err: MsleakError, command: click.Command | None = None) -> str:
-    """``err``'s message with each parameter it names written as its flag. A quoted setting
+    """``err``'s message with each parameter it names written as the flag of ``command``
+    (:func:`rewrite`)."""
+    return rewrite(str(err), getattr(err, "params", ()), lambda p: flag_for(p, command))
+
+
+def rewrite(text: str, params, flag_of) -> str:
+    """``text`` with each of ``params`` written as ``flag_of(param)``. A quoted setting
     `` `beam='dipole'` `` becomes `` `--beam dipole` ``; a quoted name (`` `sky` ``) becomes
     the flag; a parameter quoted neither way is replaced wherever it stands as a word (not
     as part of a path or file name)."""
-    text = str(err)
-    for param in getattr(err, "params", ()):
-        flag = flag_for(param, command)
+    for param in params:
+        flag = flag_of(param)
         text, settings = re.subn(
             rf"`{re.escape(param)}=(?:'([^'`]*)'|\"([^\"`]*)\"|([^`]*))`",
             lambda m: f"`{flag} {next(g for g in m.groups() if g is not None)}`", text)
