@@ -12,7 +12,7 @@ from msleak.cli._common import FloatList, MemorySize
 from msleak.errors import InputError
 from msleak.parallel.options import parallel_options
 from msleak.ps.beam_area import BEAM_AREA_MODELS
-from msleak.ps.gridding import Gridder
+from msleak.ps.gridding import GRID_EPSILON, Gridder
 from msleak.verbs.grid import Split
 from msleak.verbs.grid import grid as grid_verb
 
@@ -67,7 +67,7 @@ from msleak.verbs.grid import grid as grid_verb
               help="Working-set budget of the chunks gridded at the same time and of the "
               "grids and samples this process sums (per worker process with a scheduler "
               "address); lowers --chunk-rows, then the chunks at a time, if needed.")
-@click.option("--epsilon", type=float, default=1e-6, show_default=True, metavar="X",
+@click.option("--epsilon", type=float, default=GRID_EPSILON, show_default=True, metavar="X",
               help="wgrid accuracy (relative, ducc0).")
 @click.option("--threads", type=click.IntRange(min=1), default=1, show_default=True,
               metavar="N", help="Threads of the wgrid gridder per chunk (parallelism comes "

@@ -65,6 +65,7 @@ import numpy as np
 
 from msleak.constants import SPEED_OF_LIGHT
 from msleak.predict.kernels import sandwich
+from msleak.predict.options import DegridOptions
 
 __all__ = ["PAD", "taper_beta", "taper_halfwidth", "taper_1d", "w_layer_width",
            "subgrid_directions", "rotate_columns", "degrid"]
@@ -382,7 +383,7 @@ def _subgrid_taper(nsub: int, beta: float) -> np.ndarray:
 
 def degrid(brightness: np.ndarray, dl: float, freq: np.ndarray, xyz: np.ndarray,
            tidx: np.ndarray, p: np.ndarray, q: np.ndarray, jones: np.ndarray | None, *,
-           nsub: int = 32, epsilon: float = 1e-6, support: float = 0.0,
+           nsub: int = 32, epsilon: float = DegridOptions.epsilon, support: float = 0.0,
            jones_left: np.ndarray | None = None, centre: float | None = None,
            batch: int = 4096) -> np.ndarray:
     """Visibilities of a pixel sky by image-domain gridding (see the module docstring).

@@ -20,6 +20,7 @@ from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 
 __all__ = [
+    "GRID_EPSILON",
     "Gridder", "UVGrid", "make_grid", "stokes_weights",
     "CellAccumulator", "WGridAccumulator", "make_accumulator", "accumulator_bytes",
     "GRIDDER_DESCRIPTIONS",
@@ -35,6 +36,8 @@ Gridder = Literal["wgrid", "cell"]
 MASK_FRACTION = 0.05
 #: width of the ``wgrid`` image box in units of ``1 / cell`` rad (where its response ends)
 BOX_FACTOR = 4
+#: relative accuracy of the w-corrected gridder (ducc0) unless asked otherwise
+GRID_EPSILON = 1e-6
 
 
 def _check_gridder(gridder: str) -> None:
@@ -347,7 +350,7 @@ class WGridAccumulator:
     """
 
     def __init__(self, grid: UVGrid, freq: np.ndarray, nstokes: int = 4,
-                 epsilon: float = 1e-6, nthreads: int = 1, buffer_samples: int = 2_000_000,
+                 epsilon: float = GRID_EPSILON, nthreads: int = 1, buffer_samples: int = 2_000_000,
                  nsets: int = 1, channel_threads: int = 1,
                  to_stokes: np.ndarray | None = None):
         self.factor = BOX_FACTOR
@@ -537,7 +540,7 @@ class WGridAccumulator:
 
 
 def make_accumulator(gridder: Gridder, grid: UVGrid, freq: np.ndarray, *,
-                     epsilon: float = 1e-6, nthreads: int = 1, nsets: int = 1,
+                     epsilon: float = GRID_EPSILON, nthreads: int = 1, nsets: int = 1,
                      buffer_samples: int = 2_000_000, channel_threads: int = 1,
                      to_stokes: np.ndarray | None = None):
     """A fresh accumulator of the named gridder for ``nsets`` visibility sets, taking

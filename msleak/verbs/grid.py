@@ -28,7 +28,8 @@ from msleak.io.products import call_record, open_product, refuse_existing, save_
 from msleak.parallel import frequency_layout
 from msleak.ps.beam_area import BEAM_AREA_MODELS
 from msleak.ps.chunks import Input, Spec
-from msleak.ps.gridding import GRIDDER_DESCRIPTIONS, Gridder, make_grid, response_attrs
+from msleak.ps.gridding import (GRID_EPSILON, GRIDDER_DESCRIPTIONS, Gridder, make_grid,
+                                 response_attrs)
 from msleak.ps.uvcube import uvcube_dataset
 from msleak.verbs.grid_tasks import check_input, ms_beam_area, run_tasks
 from msleak.verbs.images import grid_image
@@ -50,7 +51,7 @@ def grid(ms: PathLike | Sequence[PathLike] | None = None, *,
          spw: int | str = 0, beam_area: float | None = None, beam_area_model: str = "auto",
          stokes: str | Sequence[str] | None = None, fov: float | None = None,
          beam_fwhm: float | None = None, chunk_rows: int | None = None,
-         memory_limit: float | None = 2 * 1024**3, epsilon: float = 1e-6, threads: int = 1,
+         memory_limit: float | None = 2 * 1024**3, epsilon: float = GRID_EPSILON, threads: int = 1,
          scheduler="threads", workers: int | None = None,
          progress: bool = False) -> xr.Dataset | list[xr.Dataset]:
     """Grid Stokes visibilities of MS columns (or image cubes) into uv cubes.
