@@ -9,8 +9,9 @@ import sys
 from pathlib import Path
 
 
-#: the page from here on is written by hand from scripts/crosscheck's output and kept
-KEPT_FROM = "\n## Cross-check: the study fed by DP3"
+#: the page from here on is written by hand (the budget's reading, scripts/crosscheck's output)
+#: and kept
+KEPT_FROM = "\n## The instrument's budget: what it says"
 
 
 def _kept(md: Path) -> str:
