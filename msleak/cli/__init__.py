@@ -114,7 +114,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
       msleak simulate obs.ms --field 3c196
       msleak sky sky.fits
       msleak predict obs.ms --sky sky.fits --beam everybeam
-      msleak noise obs.ms --sefd 2500 --column MODEL_DATA --add      (optional)
+      msleak noise obs.ms --sefd 2500 --from MODEL_DATA --column MODEL_NOISY   (optional)
       msleak grid obs.ms --column MODEL_DATA -o grid.h5
       msleak transform grid.h5 -o delay.h5
       msleak ps delay.h5 -o ps.h5

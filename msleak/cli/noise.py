@@ -17,22 +17,23 @@ __all__ = ["noise"]
               help="Column to write (created like DATA if missing).")
 @click.option("--seed", type=int, default=0, show_default=True, metavar="N",
               help="Random seed: the noise of a row depends on it and the row alone.")
-@click.option("--add", is_flag=True,
-              help="Add the noise to the values of --column instead of replacing them.")
+@click.option("--from", "source", default=None, metavar="NAME",
+              help="Write the values of this column plus the noise (e.g. the column "
+                   "msleak predict wrote) [default: the noise alone].")
 @click.option("--overwrite-data", is_flag=True,
               help="Allow --column DATA (overwrites the observed visibilities).")
-def noise(ms, sefd, column, seed, add, overwrite_data):
+def noise(ms, sefd, column, seed, source, overwrite_data):
     """Write thermal noise into a column of MS: complex Gaussian noise per correlation
     whose real and imaginary parts each have the rms SEFD / sqrt(2 dnu dt) (the radiometer
     equation; dnu the channel width, dt the row's EXPOSURE). Flagged samples are left as
-    they are. See docs/noise.md.
+    they are. A rerun gives the same column. See docs/noise.md.
 
     \b
     Examples:
       msleak noise obs.ms --sefd 2500 --seed 1
-      msleak noise obs.ms --sefd 2500 --column MODEL_DATA --add
+      msleak noise obs.ms --sefd 2500 --from MODEL_DATA --column MODEL_NOISY
     """
-    result = verb(ms, sefd=sefd, column=column, seed=seed, add=add,
+    result = verb(ms, sefd=sefd, column=column, seed=seed, source=source,
                   overwrite_data=overwrite_data)
     click.echo(f"{result.ms}: wrote noise of rms {result.sigma_jy:.4g} Jy per part into "
                f"{result.column} ({result.rows_written} rows, {result.samples} unflagged "

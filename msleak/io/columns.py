@@ -297,6 +297,24 @@ def read_run_state(table, column: str) -> dict | None:
     return dict(state) if isinstance(state, dict) else None
 
 
+#: column keyword of a ``msleak noise`` run: ``settings`` (text), ``rows_done``, ``complete``
+NOISE_KEYWORD = "MSLEAK_NOISE"
+
+
+def read_noise_state(table, column: str) -> dict | None:
+    """The ``MSLEAK_NOISE`` record of ``column`` (None if absent)."""
+    if column not in table.colnames():
+        return None
+    state = table.getcolkeywords(column).get(NOISE_KEYWORD)
+    return dict(state) if isinstance(state, dict) else None
+
+
+def write_noise_state(table, column: str, state: dict) -> None:
+    """Store the ``MSLEAK_NOISE`` record of ``column`` and flush the table."""
+    table.putcolkeyword(column, NOISE_KEYWORD, state)
+    table.flush()
+
+
 def write_run_state(table, states: dict[str, dict]) -> None:
     """Store the run records of one run's columns (``{column: record}``) and flush the
     table to disk once.

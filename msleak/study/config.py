@@ -112,7 +112,7 @@ class StudyConfig:
 
     def corruptions(self) -> list[tuple[str, int, list]]:
         """``(kind, realisation, predict options)`` of the instrument's budget runs; the
-        noise runs' options are empty (the noise is added after predict)."""
+        noise runs' options are empty (the noise is added to the ideal column)."""
         runs = []
         if self.ionosphere is not None:
             n = self.instrument_seeds if self.ionosphere == "random" else 1

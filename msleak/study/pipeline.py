@@ -112,7 +112,7 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
 def _budget_steps(cfg: StudyConfig, fld: str, crops: dict) -> list[Step]:
     """The instrument's budget runs of one field (docs/paper.md, "The instrument's budget"):
     the first sky at the largest field of view predicted through each corruption and
-    realisation (noise: the ideal sky, then noise added, gridded in even/odd halves), each
+    realisation (noise: added to the ideal column, gridded in even/odd halves), each
     gridded, transformed and averaged, and one leakage result per corruption."""
     runs = cfg.corruptions()
     if not runs:
@@ -133,16 +133,12 @@ def _budget_steps(cfg: StudyConfig, fld: str, crops: dict) -> list[Step]:
                                                         column[kind, r], *extra],
                           inputs=[sky], outputs=[ms], after=[previous]))
         previous = steps[-1].name
-    if noise:
-        pairs = [a for key in noise for a in ("--sky", sky, "--column", column[key])]
-        steps.append(Step(f"predict-{fld}-noise", [*base, *pairs], inputs=[sky],
-                          outputs=[ms], after=[previous]))
+    for key in noise:          # the ideal column of the first sky plus noise of seed R
+        steps.append(Step(f"noise-{fld}-{key[1]}", [
+            "noise", ms, "--sefd", f"{cfg.noise_sefd:g}", "--seed", str(key[1]), "--from",
+            f"MODEL_{label.upper()}", "--column", column[key]], outputs=[ms],
+            after=[previous, f"predict-{fld}"]))
         previous = steps[-1].name
-        for key in noise:
-            steps.append(Step(f"noise-{fld}-{key[1]}", [
-                "noise", ms, "--sefd", f"{cfg.noise_sefd:g}", "--seed", str(key[1]),
-                "--column", column[key], "--add"], outputs=[ms], after=[previous]))
-            previous = steps[-1].name
     grids = {kind: [(k, r) for k, r, _ in runs if k == kind] for kind, _, _ in runs}
     for kind, keys in grids.items():
         split = ["--split", "even-odd"] if kind == "noise" else []

@@ -23,7 +23,7 @@ from msleak.conventions import correlation_layout, correlations_to_stokes_matrix
 from msleak.errors import BeamUnavailable
 from msleak.errors import InputError
 from msleak.io import ms as msio
-from msleak.io.columns import read_run_state
+from msleak.io.columns import read_noise_state, read_run_state
 from msleak.io.ms import iter_rows, open_table
 from msleak.parallel import CASACORE_LOCK, cpu_count, open_runner
 from msleak.ps.beam_area import beam_area_from_jones
@@ -107,6 +107,12 @@ def _check_complete(ms, column: str) -> None:
     if state is not None and not bool(state.get("complete", True)):
         raise InputError(f"{ms}: column {column} is incomplete (msleak predict was interrupted "
                          f"after {int(state.get('rows_done', 0))} rows); rerun that predict "
+                         "command to finish it")
+    with open_table(ms) as t:
+        noise = read_noise_state(t, column)
+    if noise is not None and not bool(noise.get("complete", True)):
+        raise InputError(f"{ms}: column {column} is incomplete (msleak noise was interrupted "
+                         f"after {int(noise.get('rows_done', 0))} rows); rerun that noise "
                          "command to finish it")
 
 

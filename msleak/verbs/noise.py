@@ -3,7 +3,10 @@
 
 Rows are read and written :data:`~msleak.telescope.noise.NOISE_CHUNK_ROWS` at a time; the
 noise of a row depends on the seed and the row alone. Flagged samples (FLAG, FLAG_ROW) are
-left as they are (zero in a new column). DATA is written only when asked.
+left as they are: zero, or the source column's values. The target is never its own source, so
+a rerun gives the same column; its ``MSLEAK_NOISE`` record keeps the run's progress (a rerun
+of an interrupted run continues it; ``msleak grid`` refuses a column left half written).
+DATA is written only when asked.
 """
 
 from __future__ import annotations
@@ -38,8 +41,9 @@ class NoiseResult:
 
 
 def noise(ms: str | os.PathLike, *, sefd: float | dict[str, float], column: str = "NOISE_DATA",
-          seed: int = 0, add: bool = False, overwrite_data: bool = False) -> NoiseResult:
-    """Write thermal noise into ``column`` of ``ms``.
+          seed: int = 0, source: str | None = None,
+          overwrite_data: bool = False) -> NoiseResult:
+    """Write thermal noise into ``column`` of ``ms``, alone or on top of ``source``'s values.
 
     Parameters
     ----------
@@ -49,11 +53,13 @@ def noise(ms: str | os.PathLike, *, sefd: float | dict[str, float], column: str 
         System equivalent flux density (Jy) of every station, or per station name (every
         used station needs one).
     column : str
-        Target column, created like DATA if missing; DATA needs ``overwrite_data``.
+        Target column, created like ``source`` (or DATA) if missing; DATA needs
+        ``overwrite_data``.
     seed : int
         The noise of a row depends on ``seed`` and the row alone.
-    add : bool
-        Add the noise to the column's values (it must exist) instead of replacing them.
+    source : str, optional
+        A column whose values the noise is added to (e.g. MODEL_DATA after predict); not
+        ``column`` itself, so that a rerun gives the same result.
 
     Returns
     -------
@@ -62,32 +68,50 @@ def noise(ms: str | os.PathLike, *, sefd: float | dict[str, float], column: str 
     given = dict(locals())
     path = check_ms(ms)
     colio.check_column_name(column, overwrite_data=overwrite_data)
-    names = read_antennas(path).names
-    station_sefd = _station_sefd(sefd, names)
+    if source is not None and source == column:
+        raise InputError(f"noise is written next to its `source`, not into it: give another "
+                         f"`column` than {column}", param=("source", "column"))
+    station_sefd = _station_sefd(sefd, read_antennas(path).names)
     colio.check_writable(path)
+    settings = f"sefd={_describe(sefd)},seed={seed},source={source or ''}"
     with colio.open_for_writing(path) as table:
-        if add and column not in table.colnames():
-            raise InputError(f"{path}: no column {column} to add noise to; leave out `add`, "
-                             "or give a `column` that exists", param=("add", "column"))
-        created = colio.ensure_data_column(table, column)
-        rows_written, samples, power = _write(path, table, column, station_sefd, seed,
-                                              add and not created)
+        double = source is not None and _is_double(path, table, source)
+        colio.ensure_data_column(table, column, double=double)
+        state = colio.read_noise_state(table, column)
+        start = int(state.get("rows_done", 0)) if state and not state.get("complete", True) \
+            and state.get("settings") == settings else 0
+        rows_written, samples, power = _write(path, table, column, source, station_sefd,
+                                              seed, settings, start)
     sigma = float(np.sqrt(power / max(samples, 1)))
     append_history(path, f"noise: SEFD {_describe(sefd)} Jy, seed {seed} -> {column}"
-                         f"{' (added)' if add else ''}; mean rms {sigma:.4g} Jy per part",
-                   command=call_record(noise, given))
+                         f"{f' (added to {source})' if source else ''}; mean rms {sigma:.4g} "
+                         "Jy per part", command=call_record(noise, given))
     return NoiseResult(ms=path, column=column, rows_written=rows_written, samples=samples,
                        sigma_jy=sigma)
 
 
-def _write(path: Path, table, column: str, station_sefd: np.ndarray, seed: int,
-           add: bool) -> tuple[int, int, float]:
-    """Draw and write the noise chunk by chunk; (rows, unflagged samples, sum of sigma^2)."""
+def _is_double(path: Path, table, source: str) -> bool:
+    """Whether ``source`` exists as complex128 (the target is then made so too)."""
+    if source not in table.colnames():
+        raise InputError(f"{path}: no column {source} to add noise to; give an existing "
+                         "`source` (e.g. the column msleak predict wrote)", param="source")
+    return table.getcoldesc(source).get("valueType") == "dcomplex"
+
+
+def _write(path: Path, table, column: str, source: str | None, station_sefd: np.ndarray,
+           seed: int, settings: str, start: int) -> tuple[int, int, float]:
+    """Draw and write the noise chunk by chunk from row ``start`` on (an interrupted run of
+    the same ``settings`` wrote those before), keeping the progress in the column's
+    ``MSLEAK_NOISE`` record; (rows, unflagged samples, sum of sigma^2) written now."""
     widths = _channel_widths(path)
     rows_written = samples = 0
     power = 0.0
     columns = ["ANTENNA1", "ANTENNA2", "EXPOSURE", "DATA_DESC_ID", "FLAG", "FLAG_ROW"]
+    state = {"settings": settings, "rows_done": start, "complete": False}
+    colio.write_noise_state(table, column, state)
     for k, (rows, cols) in enumerate(iter_rows(path, columns, chunk_rows=NOISE_CHUNK_ROWS)):
+        if rows[-1] < start:
+            continue
         flags = cols["FLAG"] | cols["FLAG_ROW"][:, None, None]
         sigma = np.zeros(flags.shape[:2])
         for d in np.unique(cols["DATA_DESC_ID"]):
@@ -95,14 +119,18 @@ def _write(path: Path, table, column: str, station_sefd: np.ndarray, seed: int,
             sigma[at] = radiometer_sigma(station_sefd[cols["ANTENNA1"][at]],
                                          station_sefd[cols["ANTENNA2"][at]], widths[d],
                                          cols["EXPOSURE"][at])
-        values = thermal_noise(sigma, flags.shape[2], seed, k)
-        old = colio.read_rows(table, column, rows)
-        values = np.where(flags, old, (old if add else 0) + values).astype(old.dtype)
-        colio.write_rows(table, column, rows, values)
+        base = colio.read_rows(table, source or column, rows)
+        if source is None:
+            base = np.zeros_like(base)
+        values = np.where(flags, base, base + thermal_noise(sigma, flags.shape[2], seed, k))
+        colio.write_rows(table, column, rows, values.astype(base.dtype))
         keep = ~flags
         rows_written += rows.size
         samples += int(keep.sum())
         power += float(np.sum(np.broadcast_to(sigma[..., None], flags.shape)[keep] ** 2))
+        colio.write_noise_state(table, column, {**state, "rows_done": int(rows[-1]) + 1})
+    colio.write_noise_state(table, column, {**state, "rows_done": table.nrows(),
+                                            "complete": True})
     return rows_written, samples, power
 
 

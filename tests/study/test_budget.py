@@ -30,7 +30,8 @@ def test_budget_steps(tmp_path):
     args = [str(a) for a in steps["predict-3c196-beam_errors1"].args]
     assert args[args.index("--beam-errors") + 1] == "failed=0.1,rotation=1,seed=1"
     noise = [str(a) for a in steps["noise-3c196-2"].args]
-    assert noise[:2] == ["noise", str(tmp_path / "3c196" / "3c196.ms")] and "--add" in noise
+    assert noise[:2] == ["noise", str(tmp_path / "3c196" / "3c196.ms")]
+    assert noise[noise.index("--from") + 1] == "MODEL_15DEG"
     assert "even-odd" in [str(a) for a in steps["grid-3c196-noise"].args]
     leak = [str(a) for a in steps["leakage-3c196-ionosphere"].args]
     assert leak[leak.index("--realisations") + 1] == "1,2"

@@ -50,15 +50,17 @@ def test_rms_is_the_radiometer_equation(ms):
     assert result.samples == values.size
 
 
-def test_same_seed_same_noise_and_added_to_a_column(ms):
+def test_same_seed_same_noise_and_added_to_a_source_column(ms):
     msleak.noise(ms, sefd=SEFD, seed=3, column="N1")
     msleak.noise(ms, sefd=SEFD, seed=3, column="N2")
     msleak.noise(ms, sefd=SEFD, seed=4, column="N3")
     one, _ = _column(ms, "N1")
     np.testing.assert_array_equal(one, _column(ms, "N2")[0])
     assert not np.array_equal(one, _column(ms, "N3")[0])
-    msleak.noise(ms, sefd=SEFD, seed=3, column="N2", add=True)
-    np.testing.assert_allclose(_column(ms, "N2")[0], 2 * one, rtol=1e-6)
+    for _ in range(2):                                   # a rerun gives the same column
+        msleak.noise(ms, sefd=SEFD, seed=3, source="N3", column="N4")
+        np.testing.assert_allclose(_column(ms, "N4")[0], _column(ms, "N3")[0] + one,
+                                   rtol=0, atol=1e-6 * np.abs(one).max())  # complex64
 
 
 def test_flags_are_honoured(ms):
@@ -73,10 +75,10 @@ def test_flags_are_honoured(ms):
     values, _ = _column(ms, "MODEL_DATA")
     flagged = flags | flag_row[:, None, None]
     assert np.all(values[flagged] == 0) and np.all(values[~flagged] != 0)
-    before = values.copy()
-    msleak.noise(ms, sefd=SEFD, seed=5, column="MODEL_DATA", add=True)
-    after, _ = _column(ms, "MODEL_DATA")
-    np.testing.assert_array_equal(after[flagged], before[flagged])
+    msleak.noise(ms, sefd=SEFD, seed=5, source="MODEL_DATA", column="NOISY")
+    after, _ = _column(ms, "NOISY")
+    np.testing.assert_array_equal(after[flagged], values[flagged])
+    assert np.all(after[~flagged] != values[~flagged])
 
 
 def test_even_odd_cross_power_of_noise_is_zero(ms, tmp_path):
@@ -98,8 +100,38 @@ def test_bad_sefd_and_missing_column_refused(ms):
     with pytest.raises(InputError, match=r"sefd must be positive \(Jy\), got -1"):
         msleak.noise(ms, sefd=-1.0)
     with pytest.raises(InputError, match="no column NOPE to add noise to"):
-        msleak.noise(ms, sefd=SEFD, column="NOPE", add=True)
+        msleak.noise(ms, sefd=SEFD, source="NOPE", column="X")
+    with pytest.raises(InputError, match="noise is written next to its `source`"):
+        msleak.noise(ms, sefd=SEFD, source="DATA", column="DATA", overwrite_data=True)
     with pytest.raises(InputError, match="refusing to overwrite the DATA column"):
         msleak.noise(ms, sefd=SEFD, column="DATA")
     result = CliRunner().invoke(cli, ["noise", str(ms), "--sefd", "-1"])
     assert "--sefd must be positive (Jy), got -1" in one_error_line(result)
+
+
+def test_an_interrupted_run_resumes_and_grid_refuses_it_meanwhile(ms, monkeypatch, tmp_path):
+    """A run killed after its first block: grid refuses the column, the rerun finishes it
+    from where it stopped, equal to an uninterrupted run."""
+    import msleak.verbs.noise as verb
+    from msleak.io import columns as colio
+
+    monkeypatch.setattr(verb, "NOISE_CHUNK_ROWS", 1000)
+    msleak.noise(ms, sefd=SEFD, seed=8, column="WHOLE")
+    calls = []
+    original = colio.write_rows
+
+    def dies_on_the_second_block(table, column, rows, values):
+        calls.append(rows[0])
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        original(table, column, rows, values)
+
+    monkeypatch.setattr(colio, "write_rows", dies_on_the_second_block)
+    with pytest.raises(KeyboardInterrupt):
+        msleak.noise(ms, sefd=SEFD, seed=8, column="PART")
+    monkeypatch.setattr(colio, "write_rows", original)
+    with pytest.raises(InputError, match="msleak noise was interrupted after 1000 rows"):
+        msleak.grid(ms, column="PART", uv_range=(0.0, 400.0), output=tmp_path / "g.h5")
+    result = msleak.noise(ms, sefd=SEFD, seed=8, column="PART")
+    assert result.rows_written == _column(ms, "PART")[0].shape[0] - 1000
+    np.testing.assert_array_equal(_column(ms, "PART")[0], _column(ms, "WHOLE")[0])
