@@ -51,7 +51,7 @@ def noise(ms: str | os.PathLike, *, sefd: float | dict[str, float], column: str 
         Measurement Set, written in place.
     sefd : float or dict
         System equivalent flux density (Jy) of every station, or per station name (every
-        used station needs one).
+        ANTENNA row needs one).
     column : str
         Target column, created like ``source`` (or DATA) if missing; DATA needs
         ``overwrite_data``.
