@@ -101,19 +101,15 @@ def _weight_column(ms, columns: list[str]) -> str:
 
 
 def _check_complete(ms, column: str) -> None:
-    """Refuse a column that an interrupted ``msleak predict`` left half written."""
+    """Refuse a column that an interrupted ``msleak predict`` or ``msleak noise`` left half
+    written."""
     with open_table(ms) as t:
-        state = read_run_state(t, column)
-    if state is not None and not bool(state.get("complete", True)):
-        raise InputError(f"{ms}: column {column} is incomplete (msleak predict was interrupted "
-                         f"after {int(state.get('rows_done', 0))} rows); rerun that predict "
-                         "command to finish it")
-    with open_table(ms) as t:
-        noise = read_noise_state(t, column)
-    if noise is not None and not bool(noise.get("complete", True)):
-        raise InputError(f"{ms}: column {column} is incomplete (msleak noise was interrupted "
-                         f"after {int(noise.get('rows_done', 0))} rows); rerun that noise "
-                         "command to finish it")
+        states = (("predict", read_run_state(t, column)), ("noise", read_noise_state(t, column)))
+    for verb, state in states:
+        if state is not None and not bool(state.get("complete", True)):
+            raise InputError(f"{ms}: column {column} is incomplete (msleak {verb} was "
+                             f"interrupted after {int(state.get('rows_done', 0))} rows); "
+                             f"rerun that {verb} command to finish it")
 
 
 def _baseline_span(ms, rows: np.ndarray, field_id: int, spw_id: int) -> tuple[float, float]:
