@@ -15,7 +15,8 @@ import sys
 import types
 
 
-def _resolve(path: str):
+def resolve(path: str):
+    """The function named ``"module:function"``, imported."""
     module, _, name = path.partition(":")
     return getattr(importlib.import_module(module), name)
 
@@ -29,15 +30,15 @@ def make_callable(package: str, verb: str) -> None:
 
     class VerbPackage(types.ModuleType):
         def __call__(self, *args, **kwargs):
-            return _resolve(verb)(*args, **kwargs)
+            return resolve(verb)(*args, **kwargs)
 
         @property
         def __signature__(self):
-            return inspect.signature(_resolve(verb))
+            return inspect.signature(resolve(verb))
 
         @property
         def __wrapped__(self):
-            return _resolve(verb)
+            return resolve(verb)
 
     VerbPackage.__doc__ = own_doc
     module.__class__ = VerbPackage

@@ -9,6 +9,8 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from msleak import __version__
 from msleak.io.products import open_product
 from msleak.plot.ps import plot_ps1d
@@ -157,8 +159,6 @@ _BUDGET_KINDS = {"ionosphere": "ionospheric Faraday rotation", "beam_errors": "b
 
 def _spread(values: list[float]) -> str:
     """mean ± standard deviation (± 0 for one value)."""
-    import numpy as np
-
     v = np.asarray(values, dtype=float)
     return f"{v.mean():.3g} ± {v.std():.2g}" if v.size > 1 else f"{v[0]:.3g}"
 

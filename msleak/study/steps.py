@@ -13,7 +13,6 @@ reads a file it writes, or that it names in ``after``.
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import logging
 import os
@@ -30,6 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 from msleak import __version__ as MSLEAK_VERSION
+from msleak._callable import resolve
 from msleak.errors import MsleakError
 
 __all__ = ["Step", "StepRunner", "ProcessInvoker", "step_failed", "dependencies",
@@ -365,20 +365,13 @@ class _Prefixed:
         return getattr(self.stream, name)
 
 
-def _resolve(run):
-    if not isinstance(run, str):
-        return run
-    module, _, name = run.partition(":")
-    return getattr(importlib.import_module(module), name)
-
-
 def _worker_main(conn, run, parent: int) -> None:
     """A worker process: run each command line it is sent, send back its exit status,
     until sent ``None``. SIGINT (from ``ProcessInvoker.stop``) interrupts a running step;
     one that arrives between steps makes the next step return 130 without running. If
     the parent process goes, the running step is interrupted."""
     os.setsid()
-    run = _resolve(run)
+    run = resolve(run) if isinstance(run, str) else run
     state = {"running": False, "interrupted": False}
 
     def on_sigint(signum, frame):

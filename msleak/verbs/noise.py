@@ -11,7 +11,6 @@ DATA is written only when asked.
 
 from __future__ import annotations
 
-import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,8 +24,6 @@ from msleak.io.products import call_record
 from msleak.telescope.noise import NOISE_CHUNK_ROWS, radiometer_sigma, thermal_noise
 
 __all__ = ["noise", "NoiseResult"]
-
-log = logging.getLogger(__name__)
 
 
 @dataclass

@@ -42,7 +42,7 @@ from msleak.sky.cube import SkyCube
 from msleak.sky.sources import PointSources
 from msleak.verbs.predict_chunks import register_beam
 
-__all__ = ["PredictResult", "Target", "Plan", "make_targets", "make_plan", "sky_label"]
+__all__ = ["PredictResult", "Target", "Plan", "make_targets", "make_plan"]
 
 log = logging.getLogger(__name__)
 
@@ -181,13 +181,6 @@ def _read_sky(sky, read: dict) -> SkyCube | PointSources:
         return sky
     raise InputError(f"sky must be a path, a sky Dataset (msleak.make_sky), a SkyCube or "
                      f"PointSources, not {type(sky).__name__}")
-
-
-def sky_label(sky) -> str:
-    """How a sky is named in messages and provenance: its path, or its type in memory."""
-    if isinstance(sky, (str, os.PathLike)):
-        return str(sky)
-    return f"<in-memory {type(sky).__name__}>"
 
 
 def _digest(sky) -> str:
