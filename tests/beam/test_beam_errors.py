@@ -254,3 +254,11 @@ def test_ska_low_gain_errors_are_drawn_as_stated():
 def test_lofar_refuses_gain_errors(lofar_ms):
     with pytest.raises(InputError, match="element gain errors .* are modelled for SKA-Low"):
         load_beam("everybeam", lofar_ms, beam_errors="amplitude=0.02")
+
+
+def test_beam_errors_need_a_fast_path(tmp_path):
+    from casa_ms import build_ms
+
+    ms = build_ms(tmp_path / "mwa.ms")              # an MWA MS: EveryBeam directly
+    with pytest.raises(InputError, match="beam errors are modelled for LOFAR HBA and SKA-Low"):
+        load_beam("everybeam", ms, beam_errors="failed=0.1")

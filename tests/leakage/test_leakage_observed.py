@@ -86,3 +86,14 @@ def test_other_bins_refused(model, tmp_path):
     ps = write_ps(tmp_path / "m.h5", model)
     with pytest.raises(InputError, match="give them a directory"):
         msleak.leakage(ps, observed=ps)
+
+
+def test_other_units_and_counts_refused(model, tmp_path):
+    other = model.copy(deep=True)
+    other["power"].attrs["units"] = "Jy^2"
+    with pytest.raises(InputError, match="make both with the same ps options"):
+        compare_observed(model, other)
+    ps = write_ps(tmp_path / "m.h5", model)
+    with pytest.raises(InputError, match="2 observed PS for 3 inputs"):
+        msleak.leakage([ps, ps, ps], labels=["a", "b", "c"], observed=[ps, ps],
+                       output=tmp_path / "out")
