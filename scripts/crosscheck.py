@@ -319,7 +319,8 @@ def compare_powers(ours: Path, theirs: Path) -> dict:
     import xarray as xr
 
     out = {}
-    with xr.open_dataset(ours) as a, xr.open_dataset(theirs) as b:
+    with xr.open_dataset(ours, engine="h5netcdf") as a, \
+            xr.open_dataset(theirs, engine="h5netcdf") as b:
         k_par = a["k_par"].values
         for k, label in enumerate(a["label"].values):
             entry = out.setdefault(str(label), {})

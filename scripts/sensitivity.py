@@ -264,7 +264,7 @@ def region_stats(ps_path: Path, region: str) -> tuple[float, float]:
     from msleak.leakage.fraction import leakage_fraction, voxel_power
     from msleak.leakage.stats import leakage_statistics
 
-    with xr.open_dataset(ps_path) as ds:
+    with xr.open_dataset(ps_path, engine="h5netcdf") as ds:
         ds = ds.load()
     p_i, p_p = voxel_power(ds)
     L, mask = leakage_fraction(p_i, p_p, None, "mask")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from msleak.adapters.sefd import read_sefd
 from msleak.verbs.noise import noise as verb
 
 __all__ = ["noise"]
@@ -11,8 +12,9 @@ __all__ = ["noise"]
 
 @click.command()
 @click.argument("ms", type=click.Path())
-@click.option("--sefd", type=float, required=True, metavar="JY",
-              help="System equivalent flux density of every station (Jy).")
+@click.option("--sefd", required=True, metavar="JY|CSV",
+              help="System equivalent flux density of every station (Jy), or a CSV table "
+                   "with the columns station and sefd (Jy), one row per ANTENNA name.")
 @click.option("--column", default="NOISE_DATA", show_default=True, metavar="NAME",
               help="Column to write (created like DATA if missing).")
 @click.option("--seed", type=int, default=0, show_default=True, metavar="N",
@@ -32,8 +34,9 @@ def noise(ms, sefd, column, seed, source, overwrite_data):
     Examples:
       msleak noise obs.ms --sefd 2500 --seed 1
       msleak noise obs.ms --sefd 2500 --from MODEL_DATA --column MODEL_NOISY
+      msleak noise obs.ms --sefd sefd.csv
     """
-    result = verb(ms, sefd=sefd, column=column, seed=seed, source=source,
+    result = verb(ms, sefd=read_sefd(sefd), column=column, seed=seed, source=source,
                   overwrite_data=overwrite_data)
     click.echo(f"{result.ms}: wrote noise of rms {result.sigma_jy:.4g} Jy per part into "
                f"{result.column} ({result.rows_written} rows, {result.samples} unflagged "

@@ -6,6 +6,7 @@ import sys
 
 import click
 
+from msleak.adapters.sefd import read_sefd
 from msleak.beam.base import BEAM_NAMES
 from msleak.cli._common import MemorySize, beam_model_options
 from msleak.parallel.options import parallel_options
@@ -54,6 +55,13 @@ def _split(_ctx, _param, value):
                    "(degrees) and, SKA-Low only, the rms fractional amplitude and phase "
                    "(degrees) errors of every element's gain per feed (docs/beam.md, "
                    "\"Beam-model errors\").")
+@click.option("--noise", "noise", default=None, metavar="JY|CSV",
+              help="Add thermal noise to each column once it is predicted: the SEFD (Jy) of "
+                   "every station, or a CSV table with the columns station and sefd "
+                   "(msleak noise; docs/noise.md).")
+@click.option("--noise-seed", type=int, default=0, show_default=True, metavar="N",
+              help="Seed of the thermal noise: the noise of a row depends on it and the "
+                   "row alone.")
 @click.option("--column", "column", multiple=True, metavar="NAME",
               help="Column to write (created like DATA, tiled storage, if missing) "
                    "[default: MODEL_DATA]; with several --sky, one per --sky, all different.")
@@ -97,7 +105,7 @@ def _split(_ctx, _param, value):
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
 def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, beam_errors,
-            column,
+            noise, noise_seed, column,
             centre_correction, interpolate_frequency,
             double, double_column, method, epsilon, nsub, memory_limit, overwrite_data, field, spw,
             restart, progress, scheduler, workers):
@@ -143,12 +151,15 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, 
                   double=double, double_column=double_column, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,
                   workers=workers, progress=sys.stderr.isatty() if progress is None else progress,
-                  method=method, epsilon=epsilon, nsub=nsub)
+                  method=method, epsilon=epsilon, nsub=nsub,
+                  noise=None if noise is None else read_sefd(noise, "noise"),
+                  noise_seed=noise_seed)
     for result in results:
         if result.skipped:
             click.echo(f"{result.ms}: {result.column} is complete from an identical run; "
                        "left as it is (--restart recomputes it)", err=True)
             continue
         click.echo(f"{result.ms}: wrote {result.rows_written} rows into {result.column}"
-                   f"{' (resumed run)' if result.resumed else ''} in {result.seconds:.1f} s",
-                   err=True)
+                   f"{' (resumed run)' if result.resumed else ''} in {result.seconds:.1f} s"
+                   + (f", thermal noise of rms {result.noise_sigma_jy:.4g} Jy per part added"
+                      if result.noise_sigma_jy else ""), err=True)

@@ -1,8 +1,8 @@
 """msleak's data products on disk: self-describing HDF5 files readable with xarray.
 
 Every product is an :class:`xarray.Dataset` written with the h5netcdf engine (complex
-values allowed), so ``xarray.open_dataset(path)`` opens it. Global attributes always
-present:
+values allowed), so ``xarray.open_dataset(path, engine="h5netcdf")`` opens it. Global
+attributes always present:
 
 ``msleak_product``   the kind: ``uvcube``, ``delay``, ``ps``, ``beam``, ``leakage``, ...
 ``msleak_version``   the version that wrote it

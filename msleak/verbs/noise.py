@@ -23,7 +23,7 @@ from msleak.io.ms import append_history, check_ms, iter_rows, read_antennas
 from msleak.io.products import call_record
 from msleak.telescope.noise import NOISE_CHUNK_ROWS, radiometer_sigma, thermal_noise
 
-__all__ = ["noise", "NoiseResult"]
+__all__ = ["noise", "add_noise", "station_sefd", "NoiseResult"]
 
 
 @dataclass
@@ -68,23 +68,32 @@ def noise(ms: str | os.PathLike, *, sefd: float | dict[str, float], column: str 
     if source is not None and source == column:
         raise InputError(f"noise is written next to its `source`, not into it: give another "
                          f"`column` than {column}", param=("source", "column"))
-    station_sefd = _station_sefd(sefd, read_antennas(path).names)
+    result = add_noise(path, column, sefd, seed, source)
+    append_history(path, f"noise: SEFD {_describe(sefd)} Jy, seed {seed} -> {column}"
+                         f"{f' (added to {source})' if source else ''}; mean rms "
+                         f"{result.sigma_jy:.4g} Jy per part", command=call_record(noise, given))
+    return result
+
+
+def add_noise(path: Path, column: str, sefd: float | dict[str, float], seed: int,
+              source: str | None, *, start_over: bool = False) -> NoiseResult:
+    """Write noise into ``column`` of the MS at ``path`` (checked by the caller), alone or
+    added to ``source`` (which may be ``column`` itself: predict's noise, added in place
+    right after the column was predicted). An interrupted run of the same settings is
+    continued unless ``start_over`` (the column was rewritten since)."""
+    sefds = station_sefd(sefd, read_antennas(path).names)
     colio.check_writable(path)
     settings = f"sefd={_describe(sefd)},seed={seed},source={source or ''}"
     with colio.open_for_writing(path) as table:
         double = source is not None and _is_double(path, table, source)
         colio.ensure_data_column(table, column, double=double)
-        state = colio.read_noise_state(table, column)
+        state = None if start_over else colio.read_noise_state(table, column)
         start = int(state.get("rows_done", 0)) if state and not state.get("complete", True) \
             and state.get("settings") == settings else 0
-        rows_written, samples, power = _write(path, table, column, source, station_sefd,
+        rows_written, samples, power = _write(path, table, column, source, sefds,
                                               seed, settings, start)
-    sigma = float(np.sqrt(power / max(samples, 1)))
-    append_history(path, f"noise: SEFD {_describe(sefd)} Jy, seed {seed} -> {column}"
-                         f"{f' (added to {source})' if source else ''}; mean rms {sigma:.4g} "
-                         "Jy per part", command=call_record(noise, given))
     return NoiseResult(ms=path, column=column, rows_written=rows_written, samples=samples,
-                       sigma_jy=sigma)
+                       sigma_jy=float(np.sqrt(power / max(samples, 1))))
 
 
 def _is_double(path: Path, table, source: str) -> bool:
@@ -139,7 +148,7 @@ def _channel_widths(path: Path) -> list[np.ndarray]:
     return [np.abs(np.asarray(spws[s].width, float)) for s, _ in read_data_descriptions(path)]
 
 
-def _station_sefd(sefd, names: list[str]) -> np.ndarray:
+def station_sefd(sefd, names: list[str]) -> np.ndarray:
     """SEFD (Jy) per ANTENNA row."""
     if isinstance(sefd, dict):
         missing = [n for n in names if n not in sefd]

@@ -26,13 +26,14 @@ import numpy as np
 from msleak.adapters.beams import beam_options
 from msleak.errors import InputError, MsleakError
 from msleak.io import columns as colio
-from msleak.io.ms import append_history, check_ms, open_table
+from msleak.io.ms import append_history, check_ms, open_table, read_antennas
 from msleak.io.products import call_record
 from msleak.parallel import open_runner
 from msleak.parallel.runner import WorkerLost, parse_memory
 from msleak.predict.options import DegridOptions, Method
 from msleak.verbs import predict_chunks as chunks
 from msleak.verbs import predict_run as runstate
+from msleak.verbs.noise import add_noise, station_sefd
 from msleak.verbs.predict_plan import PredictResult, make_plan, make_targets
 
 __all__ = ["predict", "PredictResult"]
@@ -57,7 +58,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
             workers: int | None = None, progress: bool = False,
             method: Method = _DEGRID.method, epsilon: float = _DEGRID.epsilon,
-            nsub: int | None = _DEGRID.nsub):
+            nsub: int | None = _DEGRID.nsub, noise: float | dict[str, float] | None = None,
+            noise_seed: int = 0):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
     Parameters
@@ -74,9 +76,11 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
     beam, diameter, element_model, beam_file, ionosphere, beam_errors
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
-        'dipole' or 'none'), its options, the ionospheric Faraday rotation in front of it
-        (a CSV table of RMs or ``random:SEED``) and its errors (``"failed=F,rotation=DEG,
-        seed=N"``, LOFAR); :func:`msleak.adapters.beams.load_beam`.
+        'dipole' or 'none') and its options, the ionospheric Faraday rotation in front of it
+        and its errors (:func:`msleak.adapters.beams.load_beam`).
+    noise, noise_seed
+        Thermal noise added to each written column once predicted: the SEFD (Jy) of every
+        station or per station name, and the seed (:func:`msleak.noise`).
     centre_correction, interpolate_frequency : bool
         Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H; interpolate the
         sky linearly to the MS channels instead of requiring a match.
@@ -105,16 +109,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     paths = _check_paths([ms] if single_ms else list(ms))
     targets = make_targets(sky, column, fov, overwrite_data)
     budget = parse_memory(memory_limit)
-    options = beam_options(beam, diameter=diameter, element_model=element_model,
-                           beam_file=beam_file, ionosphere=ionosphere,
-                           beam_errors=beam_errors)
-    _check_options(paths, targets, double_column)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
-    runs = [runstate.new_run(make_plan(
-        p, targets, beam=beam, centre_correction=centre_correction, dtype=dtype,
-        interpolate_frequency=interpolate_frequency, field_sel=field, spw_sel=spw,
-        beam_options=options, double_column=double_column,
-        degrid=DegridOptions(method, epsilon, nsub))) for p in paths]
+    runs = _make_runs(paths, targets, given, dtype)
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -122,13 +118,31 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         arrays = _predict_in_memory(runs[0], scheduler, workers, budget, **args)
         return arrays[0] if one_sky else arrays
     _run(runs, scheduler, workers, budget, restart=restart, **args)
+    if noise is not None:
+        _add_noise(runs, noise, noise_seed)
     results = _append_history(runs, call_record(predict, given))
     return results[0] if single_ms and one_sky else results
 
 
-def _check_options(paths: list[Path], targets: list, double_column: bool) -> None:
+def _make_runs(paths: list[Path], targets: list, given: dict, dtype: np.dtype) -> list:
+    """Check the options and make the plan and run state of every MS."""
+    g = given
+    options = beam_options(g["beam"], diameter=g["diameter"], element_model=g["element_model"],
+                           beam_file=g["beam_file"], ionosphere=g["ionosphere"],
+                           beam_errors=g["beam_errors"])
+    _check_options(paths, targets, g["double_column"], g["noise"])
+    degrid = DegridOptions(g["method"], g["epsilon"], g["nsub"])
+    return [runstate.new_run(make_plan(
+        p, targets, beam=g["beam"], centre_correction=g["centre_correction"], dtype=dtype,
+        interpolate_frequency=g["interpolate_frequency"], field_sel=g["field"],
+        spw_sel=g["spw"], beam_options=options, double_column=g["double_column"],
+        degrid=degrid)) for p in paths]
+
+
+def _check_options(paths: list[Path], targets: list, double_column: bool, noise) -> None:
     """Refuse options that do not go together; repair the MSs a killed run left (only
     when they are written)."""
+    _check_noise(paths, targets, noise)
     in_memory = targets[0].column is None
     if in_memory and len(paths) > 1:
         raise InputError("column=None returns the visibilities of one Measurement Set; "
@@ -143,6 +157,27 @@ def _check_options(paths: list[Path], targets: list, double_column: bool) -> Non
         for p in paths:
             colio.check_writable(p)
             colio.repair_interrupted(p)  # header files a killed run may have truncated
+
+
+def _check_noise(paths: list[Path], targets: list, noise) -> None:
+    """Refuse noise without a column to add it to, or SEFDs that do not fit the MSs."""
+    if noise is None:
+        return
+    if targets[0].column is None:
+        raise InputError("noise is added to the columns predict writes; give a column, or "
+                         "add noise to returned visibilities yourself", param="noise")
+    for path in paths:
+        station_sefd(noise, read_antennas(path).names)
+
+
+def _add_noise(runs: list, sefd, seed: int) -> None:
+    """Add the thermal noise to each column just predicted (from its first row: the column
+    was rewritten) or left as it was (continuing a noise run that was interrupted)."""
+    for run in runs:
+        for target, result in zip(run.plan.targets, run.results):
+            added = add_noise(run.plan.ms, target.column, sefd, seed, target.column,
+                              start_over=not result.skipped)
+            result.noise_sigma_jy = added.sigma_jy
 
 
 def _check_paths(ms_list: list) -> list[Path]:
@@ -326,9 +361,11 @@ def _append_history(runs: list, command: str) -> list:
         skies = "; ".join(f"{t.label} -> {t.column}{' (unchanged)' if r.skipped else ''}"
                           for t, r in zip(plan.targets, run.results))
         s = plan.settings[0]
+        noise = [f"; thermal noise of rms {r.noise_sigma_jy:.4g} Jy per part added"
+                 for r in run.results if r.noise_sigma_jy][:1]
         append_history(plan.ms, f"predict: {skies}; beam {s['beam']}, centre correction "
                                 f"{'on' if s['centre_correction'] else 'off'}, "
-                                f"{s['precision']}", command=command)
+                                f"{s['precision']}{''.join(noise)}", command=command)
     return [res for run in runs for res in run.results]
 
 

@@ -69,6 +69,8 @@ class PredictResult:
     n_slots: int = 0
     #: rows predicted from their own UVW (not antenna-based within the tolerance)
     rows_per_baseline: int = 0
+    #: rms (Jy) of the real and imaginary parts of the thermal noise added, if any
+    noise_sigma_jy: float | None = None
 
 
 @dataclass(frozen=True)

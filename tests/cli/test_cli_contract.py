@@ -231,7 +231,8 @@ def test_readme_grid_image_example_runs_as_written(tmp_path, monkeypatch):
                                     *args[args.index("--fov"):args.index("--fov") + 2],
                                     "-o", "reference.h5"])
     assert reference.exit_code == 0, reference.output
-    split, whole = xr.open_dataset(out), xr.open_dataset("reference.h5")
+    split = xr.open_dataset(out, engine="h5netcdf")
+    whole = xr.open_dataset("reference.h5", engine="h5netcdf")
     for stokes in "QU":
         a, b = split["vis"].sel(stokes=stokes).values, whole["vis"].sel(stokes=stokes).values
         assert np.abs(b).max() > 0

@@ -85,7 +85,7 @@ def _products(iquv, names):
 def _grid(ms, out, *extra, column="DATA", beam_area=("--beam-area", "1e-3")):
     _ok("grid", ms, "--column", column, "--uv-range", "5,100", "--cell", "8", *beam_area,
         *extra, "-o", out)
-    return xr.open_dataset(out)
+    return xr.open_dataset(out, engine="h5netcdf")
 
 
 # ------------------------------------------------------------------ layouts in conventions
@@ -212,7 +212,7 @@ def test_beam_maps_of_circular_feeds(tmp_path):
         out = tmp_path / f"{corr[0]}.png"
         _ok("beam", ms, "--beam", "dipole", "-o", out, "--hour-angles", "0", "--npix", "21",
             "--fov", "20")
-        maps[corr[0]] = xr.open_dataset(out.with_suffix(".h5"))
+        maps[corr[0]] = xr.open_dataset(out.with_suffix(".h5"), engine="h5netcdf")
     circ, lin = maps["RR"], maps["XX"]
     assert circ.attrs["feed"] == "circular" and lin.attrs["feed"] == "linear"
     i, j = (int(x) for x in circ.attrs["centre_pixel"].split(","))
@@ -285,7 +285,7 @@ def test_two_correlations_downstream(tmp_path):
     _grid(ms, tmp_path / "g.h5", "--split", "even-odd")
     _ok("transform", tmp_path / "g.h5", "-o", tmp_path / "d.h5")
     _ok("ps", tmp_path / "d.h5", "-o", tmp_path / "ps.h5", "--plot", tmp_path / "ps.png")
-    ps = xr.open_dataset(tmp_path / "ps.h5")
+    ps = xr.open_dataset(tmp_path / "ps.h5", engine="h5netcdf")
     assert (tmp_path / "ps.png").stat().st_size > 1000
     power = ps["power3d"]
     for s in "IQ":

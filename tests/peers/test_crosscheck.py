@@ -85,7 +85,8 @@ def test_dp3_route_reads_its_own_columns(rows):
 
     _, out = rows
     columns = [f"{fov.upper()}" for fov in ("15deg", "9deg", "4deg")]
-    with xr.open_dataset(out / "3c196" / "dp3" / "leakage" / "leakage.h5") as leak:
+    with xr.open_dataset(out / "3c196" / "dp3" / "leakage" / "leakage.h5",
+                         engine="h5netcdf") as leak:
         assert list(leak["column"].values) == [f"DP3_{c}" for c in columns]
-    with xr.open_dataset(out / "3c196" / "leakage" / "leakage.h5") as leak:
+    with xr.open_dataset(out / "3c196" / "leakage" / "leakage.h5", engine="h5netcdf") as leak:
         assert list(leak["column"].values) == [f"MODEL_{c}" for c in columns]

@@ -89,8 +89,8 @@ def route(tmp_path_factory) -> dict:
             "-o", d / "grid_image.h5")
     _msleak("grid", ms, "--column", "MODEL_C", "-o", d / "grid_vis.h5")
     return {"ms": ms, "img": img,
-            "image": xr.load_dataset(d / "grid_image.h5"),
-            "vis": xr.load_dataset(d / "grid_vis.h5"),
+            "image": xr.load_dataset(d / "grid_image.h5", engine="h5netcdf"),
+            "vis": xr.load_dataset(d / "grid_vis.h5", engine="h5netcdf"),
             "psf": msleak.grid(image=str(img / "c-*-psf.fits"), fov=float(fov)),
             "off": msleak.grid(image=str(img / "off-*-[IQU]-image.fits"), fov=float(fov))}
 

@@ -42,11 +42,11 @@ def test_every_product_exists_and_opens(study):
     assert (study / "3c196" / "3c196.ms" / "table.dat").exists()
     assert (study / "sky" / "sky.fits").exists()
     for fov in FOVS:
-        grid = xr.open_dataset(study / "3c196" / f"grid_{fov}.h5")
+        grid = xr.open_dataset(study / "3c196" / f"grid_{fov}.h5", engine="h5netcdf")
         assert grid["vis"].dims == ("stokes", "freq", "v", "u") and grid.sizes["freq"] == 16
-        delay = xr.open_dataset(study / "3c196" / f"delay_{fov}.h5")
+        delay = xr.open_dataset(study / "3c196" / f"delay_{fov}.h5", engine="h5netcdf")
         assert delay.sizes["delay"] == 16
-        ps = xr.open_dataset(study / "3c196" / f"ps_{fov}.h5")
+        ps = xr.open_dataset(study / "3c196" / f"ps_{fov}.h5", engine="h5netcdf")
         assert ps["power"].dims == ("stokes", "k_par", "k_perp")
         assert list(ps["stokes"].values) == ["I", "Q", "U", "V", "P"]
         filled = ps["counts"].values > 0               # empty bins are NaN by design
@@ -131,8 +131,9 @@ def test_steps_at_once_give_the_products_of_steps_in_turn(study, study_seeds):
     three-seed one in turn in the msleak process (--workers 1); the first realisation's
     power spectra and leakage statistics agree to RTOL_RUNS."""
     for fov in FOVS:
-        a = xr.open_dataset(study / "3c196" / f"ps_{fov}.h5")["power"].values
-        b = xr.open_dataset(study_seeds / "3c196" / f"ps_{fov}.h5")["power"].values
+        a = xr.open_dataset(study / "3c196" / f"ps_{fov}.h5", engine="h5netcdf")["power"].values
+        b = xr.open_dataset(study_seeds / "3c196" / f"ps_{fov}.h5",
+                            engine="h5netcdf")["power"].values
         filled = np.isfinite(b)
         assert np.array_equal(np.isfinite(a), filled)
         np.testing.assert_allclose(a[filled], b[filled], rtol=RTOL_RUNS,
@@ -209,7 +210,8 @@ def test_observed_grid_step_runs_on_plain_q_and_u_cubes(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     ref = runner.invoke(cli, ["grid", "--image", "sky.fits", "--fov", "4", "-o", "ref.h5"])
     assert ref.exit_code == 0, ref.output
-    with xr.open_dataset("observed.h5") as a, xr.open_dataset("ref.h5") as b:
+    with xr.open_dataset("observed.h5", engine="h5netcdf") as a, \
+            xr.open_dataset("ref.h5", engine="h5netcdf") as b:
         for stokes in "QU":
             assert np.abs(b["vis"].sel(stokes=stokes).values).max() > 0
             np.testing.assert_array_equal(a["vis"].sel(stokes=stokes).values,

@@ -221,7 +221,7 @@ def test_tiny_observed_study_products(tiny):
     k_max = k_perp(UV_MAX, TINY_NCHAN)
     k_180 = k_perp(180.0, TINY_NCHAN)
     for fov in ("15deg", "9deg", "4deg"):
-        with xr.open_dataset(out / "3c196" / f"ps_{fov}.h5") as ps:
+        with xr.open_dataset(out / "3c196" / f"ps_{fov}.h5", engine="h5netcdf") as ps:
             assert (ps.attrs["uv_min_lambda"], ps.attrs["uv_max_lambda"]) == (30.0, UV_MAX)
             bounds = ps["k_perp_bounds"].values
             # k_perp of the outer edge (msleak ps, astropy's Planck18 D_c; 1e-6: the

@@ -135,3 +135,88 @@ def test_an_interrupted_run_resumes_and_grid_refuses_it_meanwhile(ms, monkeypatc
     result = msleak.noise(ms, sefd=SEFD, seed=8, column="PART")
     assert result.rows_written == _column(ms, "PART")[0].shape[0] - 1000
     np.testing.assert_array_equal(_column(ms, "PART")[0], _column(ms, "WHOLE")[0])
+
+
+# --- per-station SEFDs from a table, and predict's noise ------------------------------
+
+def _sefd_table(path, ms, factor=1.0):
+    """A CSV of per-station SEFDs: station k gets SEFD * (1 + k / 4) * factor."""
+    with table(f"{ms}/ANTENNA") as t:
+        names = [str(n) for n in t.getcol("NAME")]
+    rows = ["station,sefd"] + [f"{n},{SEFD * (1 + k / 4) * factor:g}"
+                               for k, n in enumerate(names)]
+    path.write_text("\n".join(rows) + "\n")
+    return path, {n: SEFD * (1 + k / 4) * factor for k, n in enumerate(names)}
+
+
+def test_per_station_sefd_table_sets_each_baselines_rms(ms, tmp_path):
+    csv, sefd = _sefd_table(tmp_path / "sefd.csv", ms)
+    result = CliRunner().invoke(cli, ["noise", str(ms), "--sefd", str(csv), "--seed", "2"])
+    assert result.exit_code == 0, result.output
+    with table(ms) as t:
+        values, a1, a2 = t.getcol("NOISE_DATA"), t.getcol("ANTENNA1"), t.getcol("ANTENNA2")
+        exposure = t.getcol("EXPOSURE")[0]
+    s = np.array(list(sefd.values()))
+    pairs = {(p, q) for p, q in zip(a1, a2) if p != q}
+    for p, q in sorted(pairs)[:6]:
+        at = (a1 == p) & (a2 == q)
+        expected = np.sqrt(s[p] * s[q] / (2 * WIDTH * exposure))
+        part = values[at].real.ravel()
+        # the standard deviation of n samples scatters by 1 / sqrt(2 n) relative
+        assert np.std(part) == pytest.approx(expected, rel=4 / np.sqrt(2 * part.size))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("nosuch.csv", "neither a number"),
+    ("bad", "line 2"),
+    ("cols", "give the columns 'station' and 'sefd'"),
+])
+def test_bad_sefd_tables_are_refused_in_one_line(ms, tmp_path, text, message):
+    arg = text
+    if text == "bad":
+        (tmp_path / "bad.csv").write_text("station,sefd\nCS001,-3\n")
+        arg = str(tmp_path / "bad.csv")
+    elif text == "cols":
+        (tmp_path / "cols.csv").write_text("name,value\nCS001,3\n")
+        arg = str(tmp_path / "cols.csv")
+    result = CliRunner().invoke(cli, ["noise", str(ms), "--sefd", arg])
+    assert result.exit_code != 0
+    assert message in one_error_line(result)
+
+
+def _point_sky(ms):
+    from ms_helpers import channel_freqs, phase_centre
+    from msleak.sky.sources import PointSources
+
+    ra0, dec0 = phase_centre(ms)
+    freq = channel_freqs(ms)
+    stokes = np.zeros((1, freq.size, 4))
+    stokes[0, :, :] = (3.0, 1.0, -0.5, 0.0)
+    return PointSources(ra=np.array([ra0 + 0.01]), dec=np.array([dec0 - 0.02]), freq=freq,
+                        stokes=stokes)
+
+
+def test_predict_noise_equals_predict_then_noise(ms):
+    from msleak.verbs.predict import predict
+
+    sky = _point_sky(ms)
+    predict(ms, sky, column="MODEL_DATA", beam="none")
+    msleak.noise(ms, sefd=SEFD, seed=5, source="MODEL_DATA", column="BY_HAND")
+    result = predict(ms, sky, column="NOISY", beam="none", noise=SEFD, noise_seed=5)
+    noisy, exposure = _column(ms, "NOISY")
+    np.testing.assert_array_equal(noisy, _column(ms, "BY_HAND")[0])
+    assert result.noise_sigma_jy == pytest.approx(SEFD / np.sqrt(2 * WIDTH * exposure[0]),
+                                                  rel=1e-12)
+    clean = _column(ms, "MODEL_DATA")[0]
+    assert np.std((noisy - clean).real) == pytest.approx(result.noise_sigma_jy, rel=0.02)
+    predict(ms, sky, column="NOISY", beam="none", noise=SEFD, noise_seed=5)  # a rerun
+    np.testing.assert_array_equal(_column(ms, "NOISY")[0], noisy)        # adds it once
+
+
+def test_predict_noise_is_refused_without_a_column_or_with_unknown_stations(ms, tmp_path):
+    from msleak.verbs.predict import predict
+
+    with pytest.raises(InputError, match="noise is added to the columns predict writes"):
+        predict(ms, _point_sky(ms), column=None, beam="none", noise=SEFD)
+    with pytest.raises(InputError, match="sefd has no value for station"):
+        predict(ms, _point_sky(ms), column="NOISY", beam="none", noise={"CS999": 1.0})
