@@ -78,3 +78,11 @@ def test_null_corruptions_give_the_ideal_leakage_and_the_report_tabulates_them(t
     assert f"| ideal instrument, first sky | 1 | {ideal[0]:.3g} |" in report
     assert f"| thermal noise (even/odd cross power), first sky | 2 | " \
            f"{np.mean(noisy):.3g} ± {np.std(noisy):.2g} |" in report
+    from msleak.io.products import open_product
+    from msleak.leakage.detectable import detectable_leakage
+
+    l_min = detectable_leakage(open_product(fdir / "ps_15deg.h5"),
+                               [open_product(fdir / f"ps_noise{r}.h5") for r in (1, 2)])
+    line = next(x for x in report.splitlines() if x.startswith("Smallest L_I detectable"))
+    assert "SEFD 3000 Jy" in line and f"median {np.median(l_min):.3g} %" in line
+    assert np.median(l_min) > 0
