@@ -76,7 +76,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
         'dipole' or 'none'), its options, the ionospheric Faraday rotation in front of it
         (a CSV table of RMs or ``random:SEED``) and its errors (``"failed=F,rotation=DEG,
-        seed=N"``, LOFAR); :func:`msleak.adapters.beams.load_beam`.
+        amplitude=A,phase=DEG,level=element,seed=N"``, LOFAR HBA and SKA-Low);
+        :func:`msleak.adapters.beams.load_beam`.
     centre_correction, interpolate_frequency : bool
         Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H; interpolate the
         sky linearly to the MS channels instead of requiring a match.

@@ -471,5 +471,14 @@ def test_ska_low_refuses_tile_level_gains(ska_ms):
 
 
 def test_bad_gain_level_refused():
-    with pytest.raises(InputError, match="level must be one of element, tile"):
+    with pytest.raises(InputError, match="beam_errors: level must be one of element, tile"):
         BeamErrors.parse("amplitude=0.02,level=dipole")
+
+
+def test_lofar_gains_of_the_wrong_shape_refused(lofar_ms):
+    from msleak.beam.lofar_fast import LofarFastBeam
+
+    array = _with_gains(read_lofar_array(lofar_ms), lambda f: np.ones((3, 16, 2)))
+    with pytest.raises(InputError, match=r"element gains of field HBA0 have shape \(3, 16, 2\), "
+                                         r"not \(24, 16, 2\)"):
+        LofarFastBeam(array)
