@@ -13,6 +13,9 @@ done here for all directions, channels and stations of a time slot at once:
    times a column sum, :func:`lattice_factors`) and station (tiles, towards DELAY_DIR)
    array factors and the field phase-reference weights in numba.
 
+Element gain errors per feed (:func:`msleak.beam.errors.perturb_lofar`) replace step 3 by a
+sum over every element of every tile per feed (:mod:`msleak.beam.lofar_gain_kernels`).
+
 Accuracy against EveryBeam and speed: docs/beam.md ("Validation", "Speed").
 """
 
