@@ -75,9 +75,8 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     beam, diameter, element_model, beam_file, ionosphere, beam_errors
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
         'dipole' or 'none'), its options, the ionospheric Faraday rotation in front of it
-        (a CSV table of RMs or ``random:SEED``) and its errors (``"failed=F,rotation=DEG,
-        amplitude=A,phase=DEG,level=element,seed=N"``, LOFAR HBA and SKA-Low);
-        :func:`msleak.adapters.beams.load_beam`.
+        (a CSV table of RMs or ``random:SEED``) and its errors (``"failed=F,amplitude=A,
+        seed=N"``...; LOFAR HBA, SKA-Low); :func:`msleak.adapters.beams.load_beam`.
     centre_correction, interpolate_frequency : bool
         Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H; interpolate the
         sky linearly to the MS channels instead of requiring a match.
