@@ -65,7 +65,8 @@ def load_beam(model: BeamName, ms: str | os.PathLike, *, field_id: int | None = 
         is then a :class:`~msleak.beam.ionosphere.IonosphereBeam`.
     beam_errors : BeamErrors or str, optional
         Errors of the model (:class:`msleak.beam.errors.BeamErrors`, or its text
-        ``"failed=F,rotation=DEG,seed=N"``): LOFAR HBA through the fast path only.
+        ``"failed=F,rotation=DEG,amplitude=A,phase=DEG,level=element,seed=N"``): LOFAR HBA
+        and SKA-Low through their fast paths only.
     **options
         ``everybeam``/``everybeam-direct``: ``element_model`` (EveryBeam element response
         model name, default Hamaker for LOFAR).  ``uvbeam``: ``beam_file`` (default
@@ -269,6 +270,10 @@ def ska_low_from_ms(ms: str | os.PathLike, element_model: str = "default",
         except InputError as err:
             raise InputError(f"{ms}: {err}") from None
     directions = read_beam_directions(ms, field_id)
+    if errors is not None and errors.gains and errors.level != "element":
+        raise InputError(f"{ms}: SKA-Low stations have no tiles, so beam_errors' gains "
+                         "take level=element (every antenna), not level=tile",
+                         param="beam_errors")
     array, gains = perturb_phased_array(read_phased_array(ms), errors or BeamErrors())
     return SkaLowBeam(array, directions.phase, directions.delay, read_antennas(ms).names,
                       model.name, used_stations, element_gains=gains)
@@ -328,9 +333,6 @@ def _try_fast(ms: Path, element_model: str, field_id: int, used, ddid: int | Non
         return None
     from msleak.beam.lofar_fast import LofarFastBeam
 
-    if errors is not None and errors.gains:
-        raise InputError(f"{ms}: element gain errors (amplitude, phase) are modelled for "
-                         "SKA-Low; LOFAR takes failed and rotation", param="beam_errors")
     return LofarFastBeam(array if errors is None else perturb_lofar(array, errors),
                          used_stations=used)
 

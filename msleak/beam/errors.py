@@ -4,10 +4,11 @@
 :class:`BeamErrors` draws, per station and reproducibly from a seed, failed elements (a
 fraction of the elements switched off, as the ELEMENT_FLAG of LOFAR_ANTENNA_FIELD and
 PHASED_ARRAY does), a rotation error of the station about its normal (axes and element
-offsets turned together about the field's centre) and, for SKA-Low, complex gain errors of
-every element and feed. :func:`perturb_lofar` applies them to a
-:class:`~msleak.beam.lofar_array.LofarArray`, :func:`perturb_phased_array` to SKA-Low's
-PHASED_ARRAY; zero errors return the array itself, so the beam is unchanged bit for bit.
+offsets turned together about the field's centre) and complex gain errors per feed (X, Y)
+of every element (SKA-Low; LOFAR HBA: every dipole pair of every tile, or every tile).
+:func:`perturb_lofar` applies them to a :class:`~msleak.beam.lofar_array.LofarArray`,
+:func:`perturb_phased_array` to SKA-Low's PHASED_ARRAY; zero errors return the array
+itself, so the beam is unchanged bit for bit.
 """
 
 from __future__ import annotations
@@ -21,7 +22,11 @@ import numpy as np
 from msleak.beam.lofar_array import LofarArray, LofarField
 from msleak.errors import InputError
 
-__all__ = ["BeamErrors", "perturb_lofar", "perturb_phased_array", "rotation_about"]
+__all__ = ["BeamErrors", "GAIN_LEVELS", "perturb_lofar", "perturb_phased_array",
+           "rotation_about", "draw_gains"]
+
+#: Where LOFAR HBA gain errors sit: every tile element (dipole pair), or every tile.
+GAIN_LEVELS = ("element", "tile")
 
 
 @dataclass(frozen=True)
@@ -36,11 +41,19 @@ class BeamErrors:
     rotation_deg : float
         rms (deg) of each station's rotation error about its field normal (Gaussian).
     amplitude : float
-        rms of the fractional amplitude error of each element's gain, per feed (SKA-Low).
+        rms of the fractional amplitude error of each gain, per feed: the gain is
+        ``(1 + amplitude g1) exp(i phase g2)``, g1 and g2 standard normal, drawn for each
+        feed (X, Y) separately, so the X and Y station beams differ.
     phase_deg : float
-        rms (deg) of the phase error of each element's gain, per feed (SKA-Low).
+        rms (deg) of the phase error of each gain, per feed.
     seed : int
         The errors of station ``k`` depend on ``seed`` and ``k`` alone.
+    level : {'element', 'tile'}
+        Where the LOFAR HBA gains sit: ``element``, every dipole pair of every 16-element
+        tile (the analogue tile beam former, which no station calibration corrects);
+        ``tile``, one gain per tile and feed (the digital station beam former's inputs,
+        what station calibration leaves). SKA-Low: ``element`` only (every antenna).
+        The array factors keep the normalisation of the model without errors.
     """
 
     failed: float = 0.0
@@ -48,8 +61,12 @@ class BeamErrors:
     seed: int = 0
     amplitude: float = 0.0
     phase_deg: float = 0.0
+    level: str = "element"
 
     def __post_init__(self) -> None:
+        if self.level not in GAIN_LEVELS:
+            raise InputError(f"beam_errors: level must be one of {', '.join(GAIN_LEVELS)}, "
+                             f"got {self.level!r}", param="beam_errors")
         if not 0.0 <= float(self.failed) < 1.0:
             raise InputError(f"beam_errors: failed must be a fraction in [0, 1), got "
                              f"{self.failed}", param="beam_errors")
@@ -71,16 +88,21 @@ class BeamErrors:
 
     @classmethod
     def parse(cls, text: str) -> "BeamErrors":
-        """From ``"failed=0.05,rotation=0.5,amplitude=0.02,phase=2,seed=1"`` (any subset,
-        in any order)."""
+        """From ``"failed=0.05,rotation=0.5,amplitude=0.02,phase=2,level=tile,seed=1"``
+        (any subset, in any order)."""
         values = {}
         for part in filter(None, (p.strip() for p in str(text).split(","))):
-            match = re.fullmatch(r"(failed|rotation|amplitude|phase|seed)=([^=]+)", part)
+            match = re.fullmatch(r"(failed|rotation|amplitude|phase|level|seed)=([^=]+)",
+                                 part)
             if not match:
                 raise InputError(f"beam_errors {text!r}: give failed=FRACTION, "
-                                 "rotation=DEG, amplitude=FRACTION, phase=DEG and seed=N, "
-                                 "comma separated", param="beam_errors")
+                                 "rotation=DEG, amplitude=FRACTION, phase=DEG, "
+                                 "level=element|tile and seed=N, comma separated",
+                                 param="beam_errors")
             key, value = match.groups()
+            if key == "level":
+                values[key] = value
+                continue
             try:
                 values[key] = int(value) if key == "seed" else float(value)
             except ValueError:
@@ -88,12 +110,13 @@ class BeamErrors:
                                  param="beam_errors") from None
         return cls(failed=values.get("failed", 0.0), rotation_deg=values.get("rotation", 0.0),
                    seed=values.get("seed", 0), amplitude=values.get("amplitude", 0.0),
-                   phase_deg=values.get("phase", 0.0))
+                   phase_deg=values.get("phase", 0.0), level=values.get("level", "element"))
 
     def describe(self) -> str:
         """The settings as :meth:`parse` reads them."""
         return (f"failed={self.failed:g},rotation={self.rotation_deg:g},"
-                f"amplitude={self.amplitude:g},phase={self.phase_deg:g},seed={self.seed}")
+                f"amplitude={self.amplitude:g},phase={self.phase_deg:g},"
+                f"level={self.level},seed={self.seed}")
 
 
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -106,9 +129,12 @@ def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
 def perturb_lofar(array: LofarArray, errors: BeamErrors) -> LofarArray:
     """``array`` with ``errors`` drawn per station (its index ``k`` in ``array.stations``):
     one angle per station turns the tiles and elements of each of its fields about the
-    field's own centre, about the normal of the station's first field, and
+    field's own centre, about the normal of the station's first field,
     ``round(failed * ntile)`` tiles of each field are switched off (field centres and phase
-    references stay)."""
+    references stay) and, with gain errors, every field gets its ``element_gains``
+    (:func:`draw_gains` per tile, element and feed, or per tile and feed for
+    ``level='tile'``; drawn for failed tiles too, so that the draws do not depend on
+    ``failed``)."""
     if errors.none:
         return array
     stations = []
@@ -117,8 +143,31 @@ def perturb_lofar(array: LofarArray, errors: BeamErrors) -> LofarArray:
         angle = math.radians(errors.rotation_deg) * rng.standard_normal()
         turn = rotation_about(station.fields[0].axes[2], angle)
         fields = tuple(_perturb_field(f, turn, errors.failed, rng) for f in station.fields)
+        if errors.gains:
+            fields = tuple(replace(f, element_gains=_tile_gains(f, errors, rng))
+                           for f in fields)
         stations.append(replace(station, fields=fields))
     return replace(array, stations=tuple(stations))
+
+
+def draw_gains(rng: np.random.Generator, shape: tuple, errors: BeamErrors) -> np.ndarray:
+    """Complex gains ``(1 + amplitude g1) exp(i phase g2)`` of ``shape``, g1 and g2 standard
+    normal (all g1 drawn first, then all g2)."""
+    amp = 1.0 + errors.amplitude * rng.standard_normal(shape)
+    phase = math.radians(errors.phase_deg) * rng.standard_normal(shape)
+    return amp * np.exp(1j * phase)
+
+
+def _tile_gains(field: LofarField, errors: BeamErrors, rng: np.random.Generator
+                ) -> np.ndarray:
+    """(ntile, nelem, 2) gains of a field's tile elements per feed (X, Y); None for a
+    field without tiles (LBA)."""
+    if field.element_offsets is None:
+        return None
+    ntile, nelem = len(field.tile_offsets), len(field.element_offsets)
+    if errors.level == "tile":
+        return np.repeat(draw_gains(rng, (ntile, 1, 2), errors), nelem, axis=1)
+    return draw_gains(rng, (ntile, nelem, 2), errors)
 
 
 def _perturb_field(field: LofarField, turn: np.ndarray, failed: float,
@@ -152,10 +201,7 @@ def perturb_phased_array(array, errors: BeamErrors) -> tuple:
         n_off = int(round(errors.failed * len(off)))
         if n_off:
             flag[rng.choice(len(off), size=n_off, replace=False)] = True
-        shape = (len(off), 2)
-        amp = 1.0 + errors.amplitude * rng.standard_normal(shape)
-        phase = math.radians(errors.phase_deg) * rng.standard_normal(shape)
-        gains.append(amp * np.exp(1j * phase))
+        gains.append(draw_gains(rng, (len(off), 2), errors))
         axes.append(np.asarray(ax) @ turn.T)
         offsets.append(np.asarray(off) @ turn.T)
         flags.append(flag)

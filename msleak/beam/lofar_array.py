@@ -34,6 +34,9 @@ class LofarField:
         Not flagged (EveryBeam uses the X flag for both polarizations).
     element_offsets : (16, 3) array or None
         HBA tile element positions relative to the tile centre, ITRF m.
+    element_gains : (ntile, 16, 2) complex array or None
+        Complex gain of every element of every tile per feed (X, Y) on its beam-former
+        weight (errors of the model, :func:`msleak.beam.errors.perturb_lofar`); None: 1.
     """
 
     name: str
@@ -42,6 +45,7 @@ class LofarField:
     tile_offsets: np.ndarray
     tile_enabled: np.ndarray
     element_offsets: np.ndarray | None
+    element_gains: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

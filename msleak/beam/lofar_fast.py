@@ -13,6 +13,9 @@ done here for all directions, channels and stations of a time slot at once:
    times a column sum, :func:`lattice_factors`) and station (tiles, towards DELAY_DIR)
    array factors and the field phase-reference weights in numba.
 
+Element gain errors per feed (:func:`msleak.beam.errors.perturb_lofar`) replace step 3 by a
+sum over every element of every tile per feed (:mod:`msleak.beam.lofar_gain_kernels`).
+
 Accuracy against EveryBeam and speed: docs/beam.md ("Validation", "Speed").
 """
 
@@ -26,6 +29,7 @@ from msleak._everybeam import import_everybeam
 from msleak.beam.base import BeamModel, JonesFactors
 from msleak.beam.coords import clip_pole, itrf_map, radec_to_unit, sky_basis
 from msleak.beam.lofar_array import LofarArray
+from msleak.beam.lofar_gain_kernels import combine_feed_jones, gain_factors_kernel
 from msleak.beam.lofar_kernels import combine_jones, station_factors_kernel
 from msleak.errors import InputError
 
@@ -157,6 +161,30 @@ def _tile_layout_arrays(layouts: list[np.ndarray]
     return pos, weight, count
 
 
+def _gain_arrays(fields: list, tile_w: np.ndarray, layouts: list[np.ndarray],
+                 field_layout: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``layout_pos, weights`` of :func:`gain_factors_kernel` for antenna ``fields`` with
+    their normalised tile weights ``tile_w`` (nfield, ntile) and tile element ``layouts``,
+    or None when no field has ``element_gains``: the weight of element ``e`` of tile ``t``
+    for feed ``p`` is ``tile_w[t] g[t, e, p] / nelem`` (``g = 1`` for a field without
+    gains), the model's own normalisation."""
+    if all(f.element_gains is None for f in fields):
+        return None
+    nelem = max(len(e) for e in layouts)
+    pos = np.zeros((len(layouts), nelem, 3))
+    for i, elem in enumerate(layouts):
+        pos[i, :len(elem)] = elem
+    weights = np.zeros((len(fields), 2, tile_w.shape[1], nelem), complex)
+    for n, f in enumerate(fields):
+        ntile, ne = len(f.tile_offsets), len(layouts[field_layout[n]])
+        gains = np.ones((ntile, ne, 2)) if f.element_gains is None else f.element_gains
+        if gains.shape != (ntile, ne, 2):
+            raise InputError(f"element gains of field {f.name} have shape {gains.shape}, "
+                             f"not ({ntile}, {ne}, 2)")
+        weights[n, :, :ntile, :ne] = np.moveaxis(gains, 2, 0) * (tile_w[n, :ntile, None] / ne)
+    return pos, weights
+
+
 def _uniform_step(freq: np.ndarray) -> tuple[bool, float]:
     if freq.size < 2:
         return True, 0.0
@@ -176,6 +204,10 @@ class LofarFastBeam(BeamModel):
         EveryBeam element model name; only ``hamaker`` is supported by the fast path.
     used_stations : int array, optional
         The stations the beam is for (default all).
+
+    Fields with ``element_gains`` (errors of the model, :func:`msleak.beam.errors.perturb_lofar`)
+    make the X and Y array factors differ: every element of every tile is then summed
+    (slower; no :meth:`jones_factors`, docs/beam.md "Beam-model errors").
     """
 
     name = "everybeam"
@@ -231,6 +263,8 @@ class LofarFastBeam(BeamModel):
                 self._group_response.append(eb.ElementResponse.create("hamaker", s.name))
             self._field_group[n] = groups[key]
         self._layout_pos, self._layout_w, self._layout_n = _tile_layout_arrays(layout_pos)
+        self._gains = _gain_arrays([f for _, _, f in fields], self._tile_w, layout_pos,
+                                   self._field_layout)
         log.info("fast LOFAR beam: %d stations, %d fields, %d element-response groups",
                  self.n_stations, nfield, len(self._group_axes))
 
@@ -248,14 +282,18 @@ class LofarFastBeam(BeamModel):
         if out.size == 0:
             return out
         slots = self._slots(stations)
-        factors = np.empty((stations.size, slots[3].shape[1], freq.size, ra.size),
+        feeds = () if self._gains is None else (2,)   # one factor per feed with gains
+        factors = np.empty((stations.size, slots[3].shape[1], *feeds, freq.size, ra.size),
                            np.complex128)
+        combine = combine_jones if self._gains is None else combine_feed_jones
         for it, t in enumerate(time):
             ej = self._slot_factors(float(t), freq, ra, dec, slots, factors)
-            combine_jones(factors, slots[3], ej, out[:, it])
+            combine(factors, slots[3], ej, out[:, it])
         return out
 
     def _jones_factors(self, time, freq, ra, dec, stations, dtype):
+        if self._gains is not None:
+            return None  # X and Y array factors differ: no scalar factor per station
         slots = self._slots(stations)
         slot_groups = slots[3]
         if slot_groups.shape[1] > 1:
@@ -292,7 +330,7 @@ class LofarFastBeam(BeamModel):
     def _slot_factors(self, time: float, freq, ra, dec, slots, factors) -> np.ndarray:
         """Array factors (nstation, nsub, nchan, ndir) of one time slot per station and
         element group of its fields (``slots`` from :meth:`_slots`), written into
-        ``factors``; returns the element Jones matrices (ngroup, nchan, ndir, 2, 2) (zero
+        ``factors`` ((nstation, nsub, 2, nchan, ndir), per feed, with gains); returns the element Jones matrices (ngroup, nchan, ndir, 2, 2) (zero
         for groups no station uses)."""
         slot_fields, slot_ptr, field_sub, slot_groups = slots
         uniform, df = _uniform_step(freq)
@@ -302,6 +340,12 @@ class LofarFastBeam(BeamModel):
         for g in np.unique(self._field_group[slot_fields]):
             ej[g] = element_jones(self._group_response[g], self._group_axes[g], freq, d,
                                   north, east)
+        if self._gains is not None:
+            elem_pos, weights = self._gains
+            gain_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr,
+                                field_sub, self._field_layout, self._field_scale,
+                                self._field_up, self._tile_pos, elem_pos, weights, factors)
+            return ej
         station_factors_kernel(d, s0, t0, freq, uniform, df, slot_fields, slot_ptr,
                                field_sub, self._field_layout, self._field_scale,
                                self._field_up, self._tile_pos,

@@ -70,9 +70,11 @@ def _observed(ctx, param, values):
               help="Add the instrument's budget runs with ionospheric Faraday rotation: "
               "random (a drifting screen, one per --instrument-seeds realisation) or a CSV "
               "table of RMs (msleak predict --ionosphere).")
-@click.option("--beam-errors", default=None, metavar="failed=F,rotation=DEG",
+@click.option("--beam-errors", default=None,
+              metavar="failed=F,rotation=DEG[,amplitude=A,phase=DEG,level=element|tile]",
               help="Add budget runs with beam-model errors (msleak predict --beam-errors, "
-              "without seed: one per realisation; failed is a fraction, rotation in degrees).")
+              "without seed: one per realisation; failed and amplitude are fractions, "
+              "rotation and phase in degrees).")
 @click.option("--noise", "noise_sefd", type=float, default=None, metavar="JY",
               help="Add budget runs with thermal noise of this SEFD (Jy), gridded in "
               "even/odd halves (msleak noise).")

@@ -48,13 +48,15 @@ def _split(_ctx, _param, value):
                    "or * for all) and rm (rad/m^2), interpolated in time, or random:SEED "
                    "(a drifting screen of mean 1 and rms 0.3 rad/m^2; docs/predict.md, "
                    "\"Ionosphere\").")
-@click.option("--beam-errors", metavar="failed=F,rotation=DEG,amplitude=A,phase=DEG,seed=N",
+@click.option("--beam-errors",
+              metavar="failed=F,rotation=DEG,amplitude=A,phase=DEG,level=element|tile,seed=N",
               default=None,
-              help="Errors of the LOFAR or SKA-Low beam model, per station and reproducible: "
-                   "a fraction of failed elements, the rms rotation error of each station "
-                   "(degrees) and, SKA-Low only, the rms fractional amplitude and phase "
-                   "(degrees) errors of every element's gain per feed (docs/beam.md, "
-                   "\"Beam-model errors\").")
+              help="Errors of the LOFAR HBA or SKA-Low beam model, per station and "
+                   "reproducible: a fraction of failed tiles (elements), the rms rotation "
+                   "error of each station (degrees) and the rms fractional amplitude and "
+                   "phase (degrees) errors of the complex gains, drawn per feed (X, Y) for "
+                   "every element (LOFAR: every dipole pair of every tile, or with "
+                   "level=tile every tile) (docs/beam.md, \"Beam-model errors\").")
 @click.option("--noise", "noise", default=None, metavar="JY|CSV",
               help="Add thermal noise to each column once it is predicted: the SEFD (Jy) of "
                    "every station, or a CSV table with the columns station and sefd "
