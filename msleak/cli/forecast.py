@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from msleak.cli._common import study_double_option, study_invoker, study_workers_option
+from msleak.study.config import Instrument
 from msleak.study.forecast import SETUPS, ForecastConfig, run_forecast
 
 
@@ -19,6 +20,26 @@ def _telescopes(ctx, param, value):
         raise click.BadParameter(f"{unknown[0] if unknown else value!r} is not a telescope: "
                                  f"use some of {','.join(SETUPS)}")
     return names
+
+
+def _noise(ctx, param, value):
+    """``JY`` for every telescope, or ``tel=JY,tel=JY``."""
+    if value is None:
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        pass
+    sefd = {}
+    for part in filter(None, (p.strip() for p in value.split(","))):
+        tel, _, jy = part.partition("=")
+        try:
+            sefd[tel.strip().lower()] = float(jy)
+        except ValueError:
+            raise click.BadParameter(f"{value!r}: give an SEFD in Jy for every telescope, "
+                                     "or TELESCOPE=JY pairs (e.g. lofar=4000,hera=...)") \
+                from None
+    return sefd
 
 
 @click.command()
@@ -43,6 +64,20 @@ def _telescopes(ctx, param, value):
 @click.option("--quick", is_flag=True, help="Test size for every setting not given: 8 "
               "stations, 0.2 h at 360 s, 10 channels, a 6 deg sky, 2 realisations (30 s on "
               "2 cores).")
+@click.option("--ionosphere", default=None, metavar="random|CSV",
+              help="Add the instrument's budget runs with ionospheric Faraday rotation on the "
+              "first sky: random (a drifting screen per --instrument-seeds realisation) or a "
+              "CSV table of RMs (msleak predict --ionosphere).")
+@click.option("--beam-errors", default=None,
+              metavar="failed=F,rotation=DEG[,amplitude=A,phase=DEG,level=element|tile]",
+              help="Add budget runs with beam-model errors (without seed: one per "
+              "realisation), for the telescopes whose beam model has them (LOFAR, SKA-Low).")
+@click.option("--noise", callback=_noise, default=None, metavar="JY|TEL=JY,...",
+              help="Add budget runs with thermal noise: one SEFD (Jy) for every telescope, or "
+              "one per telescope (e.g. lofar=4000); gridded in even/odd halves.")
+@click.option("--instrument-seeds", type=click.IntRange(1, None), default=3,
+              show_default=True, metavar="N",
+              help="Realisations of each corruption in the budget (docs/paper.md).")
 @study_double_option
 @study_workers_option("the telescopes' predicts overlap, as do the grids and power spectra "
                       "of a telescope")
@@ -51,7 +86,8 @@ def _telescopes(ctx, param, value):
               "resumes).")
 @click.pass_context
 def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interval_s, nchan,
-             quick, double, workers, overwrite):
+             quick, ionosphere, beam_errors, noise, instrument_seeds, double, workers,
+             overwrite):
     """Leakage forecast: the same sky realisations through LOFAR (3C196), SKA-Low, HERA and
     the MWA (EoR0) with matched settings, each with its own beam model and the beam at the
     phase centre removed; OUTDIR/forecast.md, forecast.csv and figures/forecast.png compare
@@ -64,10 +100,13 @@ def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interva
     Examples:
       msleak forecast forecast/ --quick
       msleak forecast forecast/ --telescopes lofar,ska-low --seeds 5
+      msleak forecast forecast/ --ionosphere random --noise lofar=4000
     """
     cfg = ForecastConfig(outdir=Path(outdir), telescopes=telescopes, seed=seed, seeds=seeds,
                          stations=stations, duration_h=duration_h, interval_s=interval_s,
-                         nchan=nchan, quick=quick, double=double)
+                         nchan=nchan, quick=quick, double=double, noise=noise,
+                         instrument=Instrument(ionosphere, beam_errors, None,
+                                               instrument_seeds))
     with study_invoker(ctx, "forecast", workers) as (invoke, workers):
         report = run_forecast(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"forecast: {report}")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from msleak.errors import InputError
 
-__all__ = ["StudyConfig", "FIELDS_OF_VIEW", "RESOLUTIONS", "PAPER_UV_RANGE",
+__all__ = ["StudyConfig", "Instrument", "FIELDS_OF_VIEW", "RESOLUTIONS", "PAPER_UV_RANGE",
            "OBSERVED_UV_RANGE", "SKY_FOV_DEG", "nyquist_npix"]
 
 #: (label, crop in pixels of the 50-pixel 15-deg cube): the paper's 15, 9 and 4 deg fields
@@ -39,6 +39,57 @@ def nyquist_npix(fov_deg: float, uv_max: float) -> int:
     """Pixels a side of a cube ``fov_deg`` wide whose pixels resolve baselines up to
     ``uv_max`` wavelengths: pixel <= 1 / (2 uv_max) rad, so n = ceil(2 uv_max fov_rad)."""
     return math.ceil(2.0 * uv_max * math.radians(fov_deg) - 1e-9)
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """What a real observation adds, for the budget runs of ``msleak paper`` and ``msleak
+    forecast`` (docs/paper.md, "The instrument's budget"): a CSV table of RMs or
+    ``"random"`` (``random:N`` per realisation), beam errors without their seed
+    (``"failed=F,rotation=DEG"``), thermal noise (SEFD, Jy); each is predicted ``seeds``
+    times (a CSV table once)."""
+
+    ionosphere: str | None = None
+    beam_errors: str | None = None
+    noise_sefd: float | None = None
+    seeds: int = 3
+
+    def check(self) -> None:
+        """Raise :class:`InputError` for settings predict would refuse."""
+        if self.seeds < 1:
+            raise InputError(f"instrument_seeds must be at least 1, got {self.seeds}",
+                             param="instrument_seeds")
+        if self.ionosphere is not None and self.ionosphere != "random" \
+                and not Path(self.ionosphere).is_file():
+            raise InputError(f"ionosphere {self.ionosphere!r} is neither random nor a CSV "
+                             "table of RMs", param="ionosphere")
+        if self.beam_errors is not None:
+            from msleak.beam.errors import BeamErrors
+
+            if "seed" in self.beam_errors:
+                raise InputError("the study draws beam_errors' seed per realisation: give "
+                                 "failed, rotation, amplitude and phase only",
+                                 param="beam_errors")
+            BeamErrors.parse(self.beam_errors)
+        if self.noise_sefd is not None and not self.noise_sefd > 0:
+            raise InputError(f"noise_sefd must be positive (Jy), got {self.noise_sefd}",
+                             param="noise_sefd")
+
+    def runs(self) -> list[tuple[str, int, list]]:
+        """``(kind, realisation, predict options)`` of the budget runs; the noise runs'
+        options are empty (the noise is added to the ideal column)."""
+        runs = []
+        if self.ionosphere is not None:
+            n = self.seeds if self.ionosphere == "random" else 1
+            runs += [("ionosphere", r, ["--ionosphere", f"random:{r}" if
+                                        self.ionosphere == "random" else self.ionosphere])
+                     for r in range(1, n + 1)]
+        if self.beam_errors is not None:
+            runs += [("beam_errors", r, ["--beam-errors", f"{self.beam_errors},seed={r}"])
+                     for r in range(1, self.seeds + 1)]
+        if self.noise_sefd is not None:
+            runs += [("noise", r, []) for r in range(1, self.seeds + 1)]
+        return runs
 
 
 @dataclass
@@ -90,41 +141,19 @@ class StudyConfig:
                 raise InputError(f"sky_fov_deg {self.sky_fov_deg:g}: must be within "
                                  f"0..{SKY_FOV_DEG:g} deg")
 
-    def _check_instrument(self) -> None:
-        if self.instrument_seeds < 1:
-            raise InputError(f"instrument_seeds must be at least 1, got "
-                             f"{self.instrument_seeds}", param="instrument_seeds")
-        if self.ionosphere is not None and self.ionosphere != "random" \
-                and not Path(self.ionosphere).is_file():
-            raise InputError(f"ionosphere {self.ionosphere!r} is neither random nor a CSV "
-                             "table of RMs", param="ionosphere")
-        if self.beam_errors is not None:
-            from msleak.beam.errors import BeamErrors
+    @property
+    def instrument(self) -> "Instrument":
+        """The corruptions of the budget runs."""
+        return Instrument(self.ionosphere, self.beam_errors, self.noise_sefd,
+                          self.instrument_seeds)
 
-            if "seed" in self.beam_errors:
-                raise InputError("the study draws beam_errors' seed per realisation: give "
-                                 "failed, rotation, amplitude and phase only",
-                                 param="beam_errors")
-            BeamErrors.parse(self.beam_errors)
-        if self.noise_sefd is not None and not self.noise_sefd > 0:
-            raise InputError(f"noise_sefd must be positive (Jy), got {self.noise_sefd}",
-                             param="noise_sefd")
+    def _check_instrument(self) -> None:
+        self.instrument.check()
 
     def corruptions(self) -> list[tuple[str, int, list]]:
-        """``(kind, realisation, predict options)`` of the instrument's budget runs; the
-        noise runs' options are empty (the noise is added to the ideal column)."""
-        runs = []
-        if self.ionosphere is not None:
-            n = self.instrument_seeds if self.ionosphere == "random" else 1
-            runs += [("ionosphere", r, ["--ionosphere", f"random:{r}" if
-                                        self.ionosphere == "random" else self.ionosphere])
-                     for r in range(1, n + 1)]
-        if self.beam_errors is not None:
-            runs += [("beam_errors", r, ["--beam-errors", f"{self.beam_errors},seed={r}"])
-                     for r in range(1, self.instrument_seeds + 1)]
-        if self.noise_sefd is not None:
-            runs += [("noise", r, []) for r in range(1, self.instrument_seeds + 1)]
-        return runs
+        """``(kind, realisation, predict options)`` of the instrument's budget runs
+        (:meth:`Instrument.runs`)."""
+        return self.instrument.runs()
 
     @property
     def simulate_args(self) -> list:

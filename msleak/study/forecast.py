@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +22,9 @@ from msleak.errors import InputError
 from msleak.io.products import open_product
 from msleak.leakage.fraction import window_leakage
 from msleak.plot.forecast import plot_forecast
+from msleak.study.config import Instrument
+from msleak.study.pipeline import Budget, budget_steps
+from msleak.study.report import BUDGET_KINDS, detectable_text, spread_text, stats_rows
 from msleak.study.steps import Step, StepRunner, predict_precision
 from msleak.telescope.hera_mwa import HERA_DISH_DIAMETER_M, MWA_TILE_SIZE_M
 from msleak.telescope.layouts import HBA_FIELD_DIAMETER
@@ -100,6 +103,10 @@ class ForecastConfig:
     quick: bool = False
     #: predict in complex128 arithmetic (docs/leakage.md, "The numerical floor")
     double: bool = True
+    #: the instrument's budget runs of each telescope (its noise_sefd unused: see noise)
+    instrument: Instrument = Instrument()
+    #: thermal noise of the budget runs: an SEFD (Jy) for every telescope, or per telescope
+    noise: float | dict | None = None
 
     def __post_init__(self):
         self.telescopes = tuple(dict.fromkeys(self.telescopes))
@@ -118,14 +125,33 @@ class ForecastConfig:
             raise InputError(f"duration_h ({self.duration_h} h) and interval_s "
                              f"({self.interval_s} s) must be positive, the duration at least "
                              "one interval", param=("duration_h", "interval_s"))
+        self._check_noise()
         if "hera" in self.telescopes and SETUPS["hera"].freq_min(self.nchan) < 100e6:
             raise InputError(f"nchan {self.nchan} channels of {_CHAN_WIDTH / 1e3:g} kHz do "
                              "not fit HERA's beam file (100-145 MHz): use at most 231",
                              param="nchan")
 
+    def _check_noise(self) -> None:
+        sefd = self.noise if isinstance(self.noise, dict) else \
+            {t: self.noise for t in self.telescopes} if self.noise is not None else {}
+        unknown = [t for t in sefd if t not in self.telescopes]
+        if unknown:
+            raise InputError(f"noise is given for {unknown[0]}, which the forecast does not "
+                             f"run ({', '.join(self.telescopes)})", param="noise")
+        for value in sefd.values():
+            replace(self.instrument, noise_sefd=value).check()
+        self.instrument.check()
+
     @property
     def realisations(self) -> list[int]:
         return [self.seed + k for k in range(self.seeds)]
+
+    def instrument_of(self, tel: str) -> Instrument:
+        """The budget runs' corruptions for ``tel``: beam errors only where its beam model
+        has them (LOFAR HBA and SKA-Low through the EveryBeam path), its own SEFD."""
+        sefd = self.noise.get(tel) if isinstance(self.noise, dict) else self.noise
+        errors = self.instrument.beam_errors if SETUPS[tel].beam == "everybeam" else None
+        return replace(self.instrument, beam_errors=errors, noise_sefd=sefd)
 
     @property
     def sky_args(self) -> list:
@@ -189,11 +215,29 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
     return steps
 
 
+def _budget_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
+    """The instrument's budget runs of ``tel`` on the first sky realisation
+    (:func:`msleak.study.pipeline.budget_steps`)."""
+    setup, seed = SETUPS[tel], cfg.seed
+    tdir = Path(cfg.outdir) / tel
+    cell, uv_range = setup.uv_grid(cfg.nchan)
+    budget = Budget(ms=tdir / f"{tel}.ms", outdir=tdir, sky=cubes[seed, setup.freq_min(
+        cfg.nchan)], label=f"s{seed}", name=tel, predict=["--beam", setup.beam,
+                                                          *predict_precision(cfg.double)],
+        grid=["--cell", f"{cell:.6g}", "--uv-range", f"{uv_range[0]:.6g},{uv_range[1]:.6g}"],
+        ps=[], ideal_column=f"MODEL_S{seed}", after=(f"grid-{tel}", f"predict-{tel}"),
+        field_name=setup.label, leakage=("--no-pdf",))
+    instrument = cfg.instrument_of(tel)
+    return budget_steps(budget, instrument.runs(), instrument.noise_sefd)
+
+
 def forecast_steps(cfg: ForecastConfig) -> list[Step]:
     """Every step of the forecast, in order."""
     steps, cubes = _sky_steps(cfg, Path(cfg.outdir) / "sky")
     for tel in cfg.telescopes:
         steps += _telescope_steps(cfg, tel, cubes)
+    for tel in cfg.telescopes:
+        steps += _budget_steps(cfg, tel, cubes)
     return steps
 
 
@@ -245,6 +289,7 @@ def write_summary(cfg: ForecastConfig, rows: list[dict], log_: list[dict],
                      f"{r['median']:.3g} ± {r['median_scatter']:.2g} | "
                      f"{r['pareto_median']:.3g} ± {r['pareto_scatter']:.2g} | "
                      f"{r['window']:.3g} ± {r['window_scatter']:.2g} |")
+    lines += _budget_lines(cfg)
     lines += ["", f"![forecast]({fig.relative_to(out)})", "",
               f"## Commands ({seconds:.0f} s)", "", "```"]
     lines += [f"{s['command']}{'   # up to date, skipped' if s['skipped'] else ''}"
@@ -253,6 +298,41 @@ def write_summary(cfg: ForecastConfig, rows: list[dict], log_: list[dict],
     path = out / "forecast.md"
     path.write_text("\n".join(lines))
     return path
+
+
+def _budget_lines(cfg: ForecastConfig) -> list[str]:
+    """The instrument's budget table of every telescope with budget runs, and the smallest
+    L_I its thermal noise lets it detect."""
+    lines, notes = [], []
+    for tel in cfg.telescopes:
+        tdir, label = Path(cfg.outdir) / tel, f"s{cfg.seed}"
+        ideal = [r for r in stats_rows(tdir / "leakage" / "stats.csv") if r["label"] == label]
+        found = [(text, rows) for kind, text in BUDGET_KINDS.items()
+                 if (rows := stats_rows(tdir / f"leakage_{kind}" / "stats.csv"))]
+        if not found or not ideal:
+            continue
+        for text, rows in [("ideal instrument", ideal), *found]:
+            lines.append(f"| {SETUPS[tel].label} | {text} | {len(rows)} | "
+                         f"{spread_text([float(r['median']) for r in rows])} | "
+                         f"{spread_text([float(r['pareto_median']) for r in rows])} |")
+        instrument = cfg.instrument_of(tel)
+        if instrument.noise_sefd is not None:
+            notes += [f"{SETUPS[tel].label}: " + text for text in detectable_text(
+                tdir / f"ps_{label}.h5", [tdir / f"ps_noise{r}.h5" for r in
+                                          range(1, instrument.seeds + 1)],
+                instrument.noise_sefd, tdir / f"{tel}.ms") if text]
+    if not lines:
+        return []
+    skipped = [SETUPS[t].label for t in cfg.telescopes
+               if cfg.instrument.beam_errors and SETUPS[t].beam != "everybeam"]
+    return ["", "## The instrument's budget", "",
+            f"L_I of the first sky realisation (seed {cfg.seed}): median over the 3D voxels, "
+            "mean ± standard deviation over the realisations of each corruption alone "
+            "(percent; docs/paper.md, \"The instrument's budget\")"
+            + (f"; beam-model errors are not modelled for {', '.join(skipped)}"
+               if skipped else "") + ".", "",
+            "| telescope | varied | realisations | data median | Pareto median |",
+            "|---|---|---|---|---|", *lines, "", *notes]
 
 
 def run_forecast(cfg: ForecastConfig, invoke, overwrite: bool = False,

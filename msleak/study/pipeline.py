@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from msleak.errors import InputError
@@ -112,57 +113,93 @@ def _field_steps(cfg: StudyConfig, fld: str, crops: dict, fig: Path) -> list[Ste
 def _budget_steps(cfg: StudyConfig, fld: str, crops: dict) -> list[Step]:
     """The instrument's budget runs of one field (docs/paper.md, "The instrument's budget"):
     the first sky at the largest field of view predicted through each corruption and
-    realisation (noise: added to the ideal column, gridded in even/odd halves), each
-    gridded, transformed and averaged, and one leakage result per corruption."""
-    runs = cfg.corruptions()
+    realisation, as :func:`budget_steps` lays them out."""
+    fdir = Path(cfg.outdir) / fld
+    label = cfg.fields_of_view[0][0]
+    budget = Budget(ms=fdir / f"{fld}.ms", outdir=fdir, sky=crops[cfg.seed, label],
+                    label=label, name=fld, predict=["--beam", cfg.beam,
+                                                    *predict_precision(cfg.double),
+                                                    *cfg.predict_args],
+                    grid=cfg.grid_args, ps=cfg.ps_args, ideal_column=f"MODEL_{label.upper()}",
+                    after=(f"beam-{fld}", f"predict-{fld}"), field_name=fld.upper())
+    return budget_steps(budget, cfg.corruptions(), cfg.noise_sefd)
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Where and how the budget runs of one MS go: the MS and the directory of their
+    products, the sky and its label, the options of predict, grid and ps, the column of the
+    ideal prediction of that sky (the noise is added to it), the steps to run after (the
+    last one writing the MS, the one writing the ideal column), the name in the tables."""
+
+    ms: Path
+    outdir: Path
+    sky: Path
+    label: str
+    name: str
+    predict: list
+    grid: list
+    ps: list
+    ideal_column: str
+    after: tuple
+    field_name: str
+    leakage: tuple = ()
+
+
+def budget_steps(b: Budget, runs: list, noise_sefd) -> list[Step]:
+    """Each corruption and realisation of ``runs`` (``(kind, r, predict options)``) predicted
+    into ``MODEL_<KIND><r>`` (noise: ``noise_sefd`` added to the ideal column, gridded in
+    even/odd halves), gridded, transformed, and one leakage result per kind in
+    ``leakage_<kind>``."""
     if not runs:
         return []
-    fdir = Path(cfg.outdir) / fld
-    ms = fdir / f"{fld}.ms"
-    label = cfg.fields_of_view[0][0]
-    sky = crops[cfg.seed, label]
-    base = ["predict", ms, "--beam", cfg.beam, *predict_precision(cfg.double),
-            *cfg.predict_args]
     column = {(kind, r): f"MODEL_{kind.upper()}{r}" for kind, r, _ in runs}
-    steps, previous = [], f"beam-{fld}"
-    noise = [(kind, r) for kind, r, _ in runs if kind == "noise"]
+    steps, previous = [], b.after[0]
     for kind, r, extra in runs:
         if kind == "noise":
             continue
-        steps.append(Step(f"predict-{fld}-{kind}{r}", [*base, "--sky", sky, "--column",
-                                                        column[kind, r], *extra],
-                          inputs=[sky], outputs=[ms], after=[previous]))
+        steps.append(Step(f"predict-{b.name}-{kind}{r}", ["predict", b.ms, *b.predict,
+                                                          "--sky", b.sky, "--column",
+                                                          column[kind, r], *extra],
+                          inputs=[b.sky], outputs=[b.ms], after=[previous]))
         previous = steps[-1].name
-    for key in noise:          # the ideal column of the first sky plus noise of seed R
-        steps.append(Step(f"noise-{fld}-{key[1]}", [
-            "noise", ms, "--sefd", f"{cfg.noise_sefd:g}", "--seed", str(key[1]), "--from",
-            f"MODEL_{label.upper()}", "--column", column[key]], outputs=[ms],
-            after=[previous, f"predict-{fld}"]))
-        previous = steps[-1].name
-    grids = {kind: [(k, r) for k, r, _ in runs if k == kind] for kind, _, _ in runs}
-    for kind, keys in grids.items():
-        split = ["--split", "even-odd"] if kind == "noise" else []
-        args = ["grid", ms, "--overwrite", *cfg.grid_args, *split]
-        for key in keys:
-            args += ["--column", column[key], "-o", fdir / f"grid_{kind}{key[1]}.h5"]
-        steps.append(Step(f"grid-{fld}-{kind}", args, reads=[ms], after=[previous],
-                          outputs=[fdir / f"grid_{kind}{r}.h5" for _, r in keys]))
-        ps_files = []
-        for _, r in keys:
-            delay, ps = fdir / f"delay_{kind}{r}.h5", fdir / f"ps_{kind}{r}.h5"
-            steps += [Step(f"transform-{fld}-{kind}{r}", ["transform",
-                           fdir / f"grid_{kind}{r}.h5", "-o", delay, "--overwrite"],
-                           inputs=[fdir / f"grid_{kind}{r}.h5"], outputs=[delay]),
-                      Step(f"ps-{fld}-{kind}{r}", ["ps", delay, "-o", ps, "--overwrite",
-                                                   *cfg.ps_args],
-                           inputs=[delay], outputs=[ps])]
-            ps_files.append(ps)
-        leak = fdir / f"leakage_{kind}"
-        steps.append(Step(f"leakage-{fld}-{kind}", [
-            "leakage", *ps_files, "--labels", ",".join([label] * len(keys)),
-            "--realisations", ",".join(str(r) for _, r in keys), "--field-name",
-            fld.upper(), "-o", leak, "--overwrite"], inputs=ps_files,
-            outputs=[leak / "stats.csv", leak / "estimates.csv"]))
+    for kind, r, _ in runs:        # the ideal column of the sky plus noise of seed r
+        if kind == "noise":
+            steps.append(Step(f"noise-{b.name}-{r}", [
+                "noise", b.ms, "--sefd", f"{noise_sefd:g}", "--seed", str(r), "--from",
+                b.ideal_column, "--column", column[kind, r]], outputs=[b.ms],
+                after=[previous, *b.after[1:]]))
+            previous = steps[-1].name
+    kinds = {kind: [(k, r) for k, r, _ in runs if k == kind] for kind, _, _ in runs}
+    for kind, keys in kinds.items():
+        steps += _budget_products(b, kind, keys, column, previous)
+    return steps
+
+
+def _budget_products(b: Budget, kind: str, keys: list, column: dict, previous: str
+                     ) -> list[Step]:
+    """Grid (one pass over the MS), transform, ps and leakage of one kind's runs."""
+    split = ["--split", "even-odd"] if kind == "noise" else []
+    args = ["grid", b.ms, "--overwrite", *b.grid, *split]
+    for key in keys:
+        args += ["--column", column[key], "-o", b.outdir / f"grid_{kind}{key[1]}.h5"]
+    steps = [Step(f"grid-{b.name}-{kind}", args, reads=[b.ms], after=[previous],
+                  outputs=[b.outdir / f"grid_{kind}{r}.h5" for _, r in keys])]
+    ps_files = []
+    for _, r in keys:
+        grid, delay, ps = (b.outdir / f"{x}_{kind}{r}.h5" for x in ("grid", "delay", "ps"))
+        steps += [Step(f"transform-{b.name}-{kind}{r}", ["transform", grid, "-o", delay,
+                                                         "--overwrite"],
+                       inputs=[grid], outputs=[delay]),
+                  Step(f"ps-{b.name}-{kind}{r}", ["ps", delay, "-o", ps, "--overwrite",
+                                                  *b.ps], inputs=[delay], outputs=[ps])]
+        ps_files.append(ps)
+    leak = b.outdir / f"leakage_{kind}"
+    steps.append(Step(f"leakage-{b.name}-{kind}", [
+        "leakage", *ps_files, "--labels", ",".join([b.label] * len(keys)),
+        "--realisations", ",".join(str(r) for _, r in keys), "--field-name", b.field_name,
+        "-o", leak, "--overwrite", *b.leakage], inputs=ps_files,
+        outputs=[leak / "stats.csv", leak / "estimates.csv"]))
     return steps
 
 

@@ -54,7 +54,7 @@ def _resolution_text(cfg: StudyConfig) -> str:
             f"spectra{one_d}.")
 
 
-def _stats_rows(path: Path) -> list[dict]:
+def stats_rows(path: Path) -> list[dict]:
     if not path.exists():
         return []
     with path.open() as fh:
@@ -153,11 +153,11 @@ def _summary(estimates: list, seeds: int) -> list[str]:
 
 
 #: the instrument's corruptions in the budget table: kind -> what the row says
-_BUDGET_KINDS = {"ionosphere": "ionospheric Faraday rotation", "beam_errors": "beam-model errors",
+BUDGET_KINDS = {"ionosphere": "ionospheric Faraday rotation", "beam_errors": "beam-model errors",
                  "noise": "thermal noise (even/odd cross power)"}
 
 
-def _spread(values: list[float]) -> str:
+def spread_text(values: list[float]) -> str:
     """mean ± standard deviation (± 0 for one value)."""
     v = np.asarray(values, dtype=float)
     return f"{v.mean():.3g} ± {v.std():.2g}" if v.size > 1 else f"{v[0]:.3g}"
@@ -168,15 +168,15 @@ def _budget(cfg: StudyConfig, fdir: Path) -> list[str]:
     ideal instrument (the first sky), over the sky realisations, and over the realisations
     of each corruption of the first sky (docs/paper.md, "The instrument's budget")."""
     label = cfg.fields_of_view[0][0]
-    ideal = [r for r in _stats_rows(fdir / "leakage" / "stats.csv") if r.get("label") == label]
+    ideal = [r for r in stats_rows(fdir / "leakage" / "stats.csv") if r.get("label") == label]
     rows = []
     if ideal:
         first = [r for r in ideal if str(r.get("realisation", cfg.seed)) == str(cfg.seed)]
         rows.append(("ideal instrument, first sky", first or ideal[:1]))
         if len(ideal) > 1:
             rows.append(("sky realisations (ideal instrument)", ideal))
-    corrupted = [(f"{text}, first sky", found) for kind, text in _BUDGET_KINDS.items()
-                 if (found := _stats_rows(fdir / f"leakage_{kind}" / "stats.csv"))]
+    corrupted = [(f"{text}, first sky", found) for kind, text in BUDGET_KINDS.items()
+                 if (found := stats_rows(fdir / f"leakage_{kind}" / "stats.csv"))]
     if not corrupted:
         return []
     rows += corrupted
@@ -186,27 +186,35 @@ def _budget(cfg: StudyConfig, fdir: Path) -> list[str]:
              "| varied | realisations | data median | Pareto median |", "|---|---|---|---|"]
     for name, found in rows:
         lines.append(f"| {name} | {len(found)} | "
-                     f"{_spread([float(r['median']) for r in found])} | "
-                     f"{_spread([float(r['pareto_median']) for r in found])} |")
+                     f"{spread_text([float(r['median']) for r in found])} | "
+                     f"{spread_text([float(r['pareto_median']) for r in found])} |")
     return lines + [""] + _detectable(cfg, fdir, label)
 
 
 def _detectable(cfg: StudyConfig, fdir: Path, label: str) -> list[str]:
-    """The smallest L_I the thermal noise lets this observation detect (3 sigma per voxel;
-    :func:`msleak.leakage.detectable.detectable_leakage`), if the budget has noise runs."""
+    """The smallest detectable L_I of one field's budget, if it has noise runs."""
+    if cfg.noise_sefd is None:
+        return []
+    return detectable_text(fdir / f"ps_{label}.h5", [fdir / f"ps_noise{r}.h5" for r in
+                                                     range(1, cfg.instrument_seeds + 1)],
+                           cfg.noise_sefd, fdir / f"{fdir.name}.ms")
+
+
+def detectable_text(ideal: Path, noisy: list[Path], sefd: float, ms: Path) -> list[str]:
+    """The smallest L_I the thermal noise lets the observation ``ms`` detect (3 sigma per
+    voxel; :func:`msleak.leakage.detectable.detectable_leakage`) from the noiseless PS
+    ``ideal`` and the noisy ones, as report lines (none while a file is missing)."""
     from msleak.io.ms import read_times
     from msleak.leakage.detectable import detectable_leakage
 
-    ideal = fdir / f"ps_{label}.h5"
-    noisy = [fdir / f"ps_noise{r}.h5" for r in range(1, cfg.instrument_seeds + 1)]
-    if cfg.noise_sefd is None or not ideal.exists() or not all(p.exists() for p in noisy):
+    if not ideal.exists() or not all(p.exists() for p in noisy):
         return []
     l_min = detectable_leakage(open_product(ideal, "ps"), [open_product(p, "ps")
                                                           for p in noisy], nsigma=3.0)
-    times = read_times(fdir / f"{fdir.name}.ms")
+    times = read_times(ms)
     hours = (times.max() - times.min()) / 3600.0 if times.size > 1 else 0.0
     return [f"Smallest L_I detectable with this observation's thermal noise (SEFD "
-            f"{cfg.noise_sefd:g} Jy, {hours:.3g} h, the same grid and uv range): median "
+            f"{sefd:g} Jy, {hours:.3g} h, the same grid and uv range): median "
             f"{np.median(l_min):.3g} % over the voxels (16th-84th percentile "
             f"{np.percentile(l_min, 16):.3g}-{np.percentile(l_min, 84):.3g} %), the L_I at "
             "which a voxel's leaked P_I stands 3 sigma above the noise's even/odd cross "
@@ -242,11 +250,11 @@ def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
     estimates = []
     for fld in cfg.fields:
         fdir = out / fld
-        rows = _stats_rows(fdir / "leakage" / "stats.csv")
+        rows = stats_rows(fdir / "leakage" / "stats.csv")
         lines += [f"## Field {fld.upper()}", ""]
         if rows:
             lines += _stats_table(rows, cfg.seeds > 1)
-            est = _stats_rows(fdir / "leakage" / "estimates.csv")
+            est = stats_rows(fdir / "leakage" / "estimates.csv")
             if est:
                 lines += _estimate_text(est)
                 estimates.append((fld, est[-1]))

@@ -86,3 +86,48 @@ def test_null_corruptions_give_the_ideal_leakage_and_the_report_tabulates_them(t
     line = next(x for x in report.splitlines() if x.startswith("Smallest L_I detectable"))
     assert "SEFD 3000 Jy" in line and f"median {np.median(l_min):.3g} %" in line
     assert np.median(l_min) > 0
+
+
+# --- msleak forecast's budget ---------------------------------------------------------
+
+def test_forecast_budget_steps_model_beam_errors_only_where_the_beam_has_them(tmp_path):
+    from msleak.study.config import Instrument
+    from msleak.study.forecast import ForecastConfig, forecast_steps
+
+    cfg = ForecastConfig(outdir=tmp_path, telescopes=("lofar", "hera"), quick=True,
+                         instrument=Instrument(ionosphere="random",
+                                               beam_errors="failed=0.1", seeds=2),
+                         noise={"lofar": 4000.0})
+    names = {s.name for s in forecast_steps(cfg)}
+    assert {"predict-lofar-beam_errors2", "predict-hera-ionosphere2", "noise-lofar-2",
+            "leakage-hera-ionosphere"} <= names
+    assert not any(n.startswith(("predict-hera-beam", "noise-hera")) for n in names)
+    noise = next(s for s in forecast_steps(cfg) if s.name == "noise-lofar-1")
+    args = [str(a) for a in noise.args]
+    assert args[args.index("--sefd") + 1] == "4000"
+    assert args[args.index("--from") + 1] == f"MODEL_S{cfg.seed}"
+    with pytest.raises(InputError, match="noise is given for mwa"):
+        ForecastConfig(outdir=tmp_path, telescopes=("lofar",), quick=True,
+                       noise={"mwa": 1.0})
+
+
+def test_forecast_null_corruptions_give_the_ideal_leakage(tmp_path):
+    out = tmp_path / "fc"
+    rm0 = tmp_path / "rm0.csv"
+    rm0.write_text("time,station,rm\n0,*,0\n1e12,*,0\n")
+    result = CliRunner().invoke(cli, ["-q", "forecast", str(out), "--quick", "--telescopes",
+                                      "lofar", "--seeds", "1", "--workers", "1",
+                                      "--ionosphere", str(rm0), "--beam-errors",
+                                      "failed=0,rotation=0", "--instrument-seeds", "2"])
+    assert result.exit_code == 0, result.output
+    tdir = out / "lofar"
+    with open(tdir / "leakage" / "stats.csv") as fh:
+        ideal = float(next(csv.DictReader(fh))["median"])
+    for kind, n in (("ionosphere", 1), ("beam_errors", 2)):
+        with open(tdir / f"leakage_{kind}" / "stats.csv") as fh:
+            medians = [float(r["median"]) for r in csv.DictReader(fh)]
+        assert len(medians) == n
+        np.testing.assert_allclose(medians, ideal, rtol=1e-12)
+    report = (out / "forecast.md").read_text()
+    assert f"| LOFAR HBA | ideal instrument | 1 | {ideal:.3g} |" in report
+    assert f"| LOFAR HBA | beam-model errors | 2 | {ideal:.3g} ± 0 |" in report
