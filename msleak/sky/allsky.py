@@ -28,7 +28,7 @@ from msleak.sky.foreground import ForegroundParams, channel_frequencies
 from msleak.sky.healpix import HEALPIX_UNITS, HealpixSky
 
 __all__ = ["AllSky", "generate_allsky", "healpix_to_unit", "los_power", "regular_field_local",
-           "CELL_DEG", "BOX_DEG", "FIELD_REFERENCE"]
+           "check_geometry", "CELL_DEG", "BOX_DEG", "FIELD_REFERENCE"]
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,9 @@ def _healpy():
     return healpy
 
 
-def _check(nside: int, cell_deg: float, box_deg: float) -> int:
+def check_geometry(nside: int, cell_deg: float, box_deg: float) -> int:
+    """Raise :class:`InputError` for an NSIDE that is not a power of 2 or an angular scale
+    outside its range; returns NSIDE as an int."""
     if isinstance(nside, bool) or int(nside) != nside or nside < 1 or int(nside) & (int(nside) - 1):
         raise InputError(f"nside must be a power of 2 (1, 2, 4, ..., 1024), got {nside}",
                          param="nside")
@@ -240,7 +242,7 @@ def generate_allsky(*, nside: int, freq_min_hz: float = 150e6, nchan: int = 50,
     """
     params = params or ForegroundParams()
     params.validate()
-    nside = _check(nside, float(cell_deg), float(box_deg))
+    nside = check_geometry(nside, float(cell_deg), float(box_deg))
     hp = _healpy()
     freq = channel_frequencies(freq_min_hz, nchan, chan_width_hz)
     cell_perp = params.cell_perp_pc or params.depth_pc / params.ncells_los
