@@ -172,7 +172,7 @@ def physics_options(func):
               help="Brightness unit of the written cube [default K; with --crop the input's]. "
                    "Jy/pixel uses S = 2 k_B T Omega_pix / lambda^2; Jy/sr (the same per "
                    "steradian) is for --healpix skies only.")
-@click.option("--healpix", "nside", type=int, default=None, metavar="NSIDE",
+@click.option("--healpix", "nside", type=int, default=None, metavar="N",
               help="Generate the whole sky instead of a cube: Q and U on every HEALPix pixel "
                    "of this NSIDE (a power of 2; RING, ICRS), each pixel one line of sight "
                    "through the slab, written as a pyradiosky SkyH5 file OUT.skyh5 (needs "
