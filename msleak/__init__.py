@@ -19,6 +19,7 @@ __version__ = "0.1.0"
 _VERBS = {
     "simulate": "msleak.verbs.simulate:simulate",
     "make_sky": "msleak.verbs.sky:make_sky",
+    "make_allsky": "msleak.verbs.allsky:make_allsky",
     "beam_maps": "msleak.verbs.beam_maps:beam_maps",
     "predict": "msleak.predict",
     "noise": "msleak.verbs.noise:noise",

@@ -7,14 +7,18 @@ from pathlib import Path
 from typing import get_args
 
 import click
+from click.core import ParameterSource
 from astropy.io import fits
 
 from msleak.cli._common import FloatList
+from msleak.cli._flags import flag_for
 from msleak.errors import InputError
 from msleak.io.fits import is_fits
 from msleak.plot.sky import plot_sky
 from msleak.sky.cube import Units
+from msleak.sky.allsky import BOX_DEG, CELL_DEG
 from msleak.sky.foreground import ForegroundParams
+from msleak.verbs.allsky import make_allsky
 from msleak.verbs.sky import make_sky, select_skymodel, skymodel_paths
 
 __all__ = ["sky"]
@@ -43,6 +47,40 @@ def _report(ds, out, generated: bool) -> None:
                  f"seed {header['MSLEAK SEED']}")
     click.echo(f"wrote {out}: {','.join(stokes)} x {ds.sizes['freq']} channels x "
                f"{ds.sizes['y']}x{ds.sizes['x']} px in {ds.attrs['units']}{extra}")
+
+
+#: options of ``msleak sky`` that make or shape a flat cube, refused with ``--healpix``
+_FLAT_ONLY = ("input_path", "fov", "crop_npix", "npix", "phase_centre", "skymodel",
+              "skymodel_channel", "plot_path", "channel", "pixel")
+
+
+def _given(name: str) -> bool:
+    """Whether the running command's option ``name`` was given on the command line."""
+    ctx = click.get_current_context()
+    return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
+
+
+def _allsky(out, nside, cell_deg, box_deg, freq_min, nchan, chan_width, seed, units,
+            overwrite, physics) -> None:
+    """``msleak sky OUT.skyh5 --healpix NSIDE``: the whole sky, written as SkyH5."""
+    given = [flag_for(name, sky) for name in _FLAT_ONLY if _given(name)]
+    if given:
+        raise InputError(f"{', '.join(given)} shape a flat cube and cannot be used with "
+                         "--healpix")
+    if out is None:
+        raise click.UsageError("give OUT.skyh5 to write the --healpix sky")
+    if units == "Jy/pixel":
+        raise InputError("a --healpix sky is in K or Jy/sr: use --units K or --units Jy/sr")
+    result = make_allsky(out, nside=nside, freq_min=freq_min, nchan=nchan,
+                         chan_width=chan_width, seed=seed, units=units or "K",
+                         params=ForegroundParams(**physics), cell_deg=cell_deg,
+                         box_deg=box_deg, overwrite=overwrite)
+    meta, sky_ = result.meta, result.sky
+    click.echo(f"wrote {out}: Q,U x {sky_.freq_hz.size} channels x {sky_.npix} HEALPix "
+               f"pixels (NSIDE {sky_.nside}, RING, ICRS) in {sky_.unit}; rms |P| "
+               f"{meta['PRMSREF']:g} K at {physics['ref_freq_hz'] / 1e6:g} MHz over the "
+               f"sphere, Faraday depth {meta['PHIMIN']:.1f}..{meta['PHIMAX']:.1f} rad/m^2, "
+               f"seed {meta['SEED']}")
 
 
 #: the foreground model's options of ``msleak sky``: field of
@@ -130,9 +168,23 @@ def physics_options(func):
 @click.option("--phase-centre", type=FloatList(2), default=None, metavar="RA_DEG,DEC_DEG",
               help="Centre of the cube, J2000 deg [default 0,90 (NCP) when generating; "
                    "with --crop: re-centre the cube's grid there].")
-@click.option("--units", type=click.Choice(get_args(Units)), default=None,
+@click.option("--units", type=click.Choice((*get_args(Units), "Jy/sr")), default=None,
               help="Brightness unit of the written cube [default K; with --crop the input's]. "
-                   "Jy/pixel uses S = 2 k_B T Omega_pix / lambda^2.")
+                   "Jy/pixel uses S = 2 k_B T Omega_pix / lambda^2; Jy/sr (the same per "
+                   "steradian) is for --healpix skies only.")
+@click.option("--healpix", "nside", type=int, default=None, metavar="N",
+              help="Generate the whole sky instead of a cube: Q and U on every HEALPix pixel "
+                   "of this NSIDE (a power of 2; RING, ICRS), each pixel one line of sight "
+                   "through the slab, written as a pyradiosky SkyH5 file OUT.skyh5 (needs "
+                   "pip install 'msleak[healpix]'). Takes the physics options, --freq-min, "
+                   "--nchan, --chan-width, --seed, --units K|Jy/sr.")
+@click.option("--cell-deg", type=float, default=CELL_DEG, show_default=True, metavar="DEG",
+              help="With --healpix: the angle one transverse cell (--cell-perp-pc) subtends, "
+                   "as the flat cube's pixel; sets the distance mapping angle to size.")
+@click.option("--box-deg", type=float, default=BOX_DEG, show_default=True, metavar="DEG",
+              help="With --healpix: the largest transverse scale of the random fields, as "
+                   "the flat cube of this width (larger scales carry the power of its "
+                   "uniform mode).")
 @physics_options
 @click.option("--skymodel", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write the voxels as makesourcedb point sources (Jy) for DP3: one file "
@@ -152,8 +204,8 @@ def physics_options(func):
 @click.option("--overwrite", is_flag=True, help="Replace existing output files (cube, "
                                                 "sky models, figure).")
 def sky(out, input_path, fov, crop_npix, npix, freq_min, nchan, chan_width, seed,
-        phase_centre, units, skymodel, skymodel_channel, plot_path, channel, pixel, overwrite,
-        **physics):
+        phase_centre, units, nside, cell_deg, box_deg, skymodel, skymodel_channel, plot_path,
+        channel, pixel, overwrite, **physics):
     """Diffuse polarized Galactic foreground cubes (Q, U) with differential Faraday
     rotation, after Jelic et al. (2008, 2010), written as FITS (RA---SIN, DEC--SIN, FREQ,
     STOKES); or crop / re-centre / convert / export / plot an existing cube.
@@ -166,7 +218,17 @@ def sky(out, input_path, fov, crop_npix, npix, freq_min, nchan, chan_width, seed
       msleak sky --crop sky.fits --crop-npix 28 sky28.fits
       msleak sky --crop sky.fits --phase-centre 123.4,48.2 --units Jy/pixel sky3c196.fits
       msleak sky --crop sky.fits --skymodel-channel 0 --skymodel ch0.skymodel
+      msleak sky all.skyh5 --healpix 64 --nchan 20 --seed 1   # the whole sky, SkyH5
     """
+    if nside is not None:
+        return _allsky(out, nside, cell_deg, box_deg, freq_min, nchan, chan_width, seed,
+                       units, overwrite, physics)
+    for name in ("cell_deg", "box_deg"):
+        if _given(name):
+            raise InputError(f"{flag_for(name, sky)} applies to --healpix skies only; add "
+                             "--healpix NSIDE or drop it")
+    if units == "Jy/sr":
+        raise InputError("--units Jy/sr is for --healpix skies; a cube takes K or Jy/pixel")
     if out is None and skymodel is None and plot_path is None:
         raise click.UsageError("nothing to do: give OUT.fits, --skymodel or --plot")
     if input_path is not None and input_path.is_file() and not is_fits(input_path):
