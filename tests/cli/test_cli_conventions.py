@@ -22,7 +22,8 @@ UNIT_METAVARS = {"HZ", "DEG", "SEC", "HOURS", "M", "LAMBDA", "SR", "PC", "UG", "
                  "KM/S/MPC", "MPC-1", "N", "X", "FRACTION", "SIZE", "JY"}
 #: words by which the help of a list option states its unit
 UNIT_WORDS = ("Hz", "deg", "wavelength", "Mpc", "hour", "metre", "pc", "microgauss", "percent",
-              "dimensionless", "pixel", "index", "indices", "label", "name", "seed", "column")
+              "dimensionless", "pixel", "index", "indices", "label", "name", "seed", "column",
+              "Jy")
 
 
 def _command(name: str) -> click.Command:
