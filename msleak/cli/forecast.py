@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import study_double_option, study_invoker, study_workers_option
+from msleak.cli._common import FloatList, study_double_option, study_invoker, study_workers_option
 from msleak.study.config import Instrument
 from msleak.study.forecast import SETUPS, ForecastConfig, run_forecast
 
@@ -75,6 +75,13 @@ def _noise(ctx, param, value):
 @click.option("--noise", callback=_noise, default=None, metavar="JY|TEL=JY,...",
               help="Add budget runs with thermal noise: one SEFD (Jy) for every telescope, or "
               "one per telescope (e.g. lofar=4000); gridded in even/odd halves.")
+@click.option("--extents", type=FloatList(), default=None, metavar="DEG,DEG,...",
+              help="Also predict all-sky HEALPix skies within each extent (deg from the "
+              "phase centre, up to 180: every pixel above the horizon), the same "
+              "realisations, and tabulate and plot L_I against the extent "
+              "(docs/telescopes.md).")
+@click.option("--nside", type=click.IntRange(1, None), default=None, metavar="N",
+              help="NSIDE of the all-sky skies of --extents, a power of 2 [64; --quick: 16].")
 @click.option("--instrument-seeds", type=click.IntRange(1, None), default=3,
               show_default=True, metavar="N",
               help="Realisations of each corruption in the budget (docs/paper.md).")
@@ -86,8 +93,8 @@ def _noise(ctx, param, value):
               "resumes).")
 @click.pass_context
 def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interval_s, nchan,
-             quick, ionosphere, beam_errors, noise, instrument_seeds, double, workers,
-             overwrite):
+             quick, ionosphere, beam_errors, noise, extents, nside, instrument_seeds, double,
+             workers, overwrite):
     """Leakage forecast: the same sky realisations through LOFAR (3C196), SKA-Low, HERA and
     the MWA (EoR0) with matched settings, each with its own beam model and the beam at the
     phase centre removed; OUTDIR/forecast.md, forecast.csv and figures/forecast.png compare
@@ -101,10 +108,12 @@ def forecast(ctx, outdir, telescopes, seed, seeds, stations, duration_h, interva
       msleak forecast forecast/ --quick
       msleak forecast forecast/ --telescopes lofar,ska-low --seeds 5
       msleak forecast forecast/ --ionosphere random --noise lofar=4000
+      msleak forecast forecast/ --extents 4,9,15,30,60,90
     """
     cfg = ForecastConfig(outdir=Path(outdir), telescopes=telescopes, seed=seed, seeds=seeds,
                          stations=stations, duration_h=duration_h, interval_s=interval_s,
                          nchan=nchan, quick=quick, double=double, noise=noise,
+                         extents=tuple(extents or ()), nside=nside,
                          instrument=Instrument(ionosphere, beam_errors, None,
                                                instrument_seeds))
     with study_invoker(ctx, "forecast", workers) as (invoke, workers):

@@ -11,7 +11,7 @@ import numpy as np
 
 from msleak.plot import new_figure, save_figure
 
-__all__ = ["plot_forecast"]
+__all__ = ["plot_forecast", "plot_extents"]
 
 
 def plot_forecast(rows: Sequence[dict], path: str | os.PathLike, pdf: bool = True) -> Path:
@@ -35,4 +35,28 @@ def plot_forecast(rows: Sequence[dict], path: str | os.PathLike, pdf: bool = Tru
     ax.set_title(f"Leakage Q,U $\\to$ I, {n} sky realisation{'s' if n != 1 else ''}")
     ax.grid(True, which="both", axis="y", alpha=0.3)
     ax.legend(fontsize=8)
+    return save_figure(fig, path, pdf=pdf)
+
+
+def plot_extents(rows: Sequence[dict], path: str | os.PathLike, pdf: bool = True) -> Path:
+    """L_I against the sky's extent, one line per telescope: the median over the voxels
+    (left) and the EoR-window L_I (right), error bars the realisation scatter."""
+    fig, axes = new_figure(1, 2, figsize=(9.0, 3.6), sharex=True)
+    telescopes = list(dict.fromkeys(r["telescope"] for r in rows))
+    for key, ax, title in (("median", axes[0], "median over voxels"),
+                           ("window", axes[1], "EoR window (above the horizon wedge)")):
+        for tel in telescopes:
+            mine = [r for r in rows if r["telescope"] == tel]
+            x = np.array([r["extent_deg"] for r in mine], dtype=float)
+            y = np.array([r[key] for r in mine], dtype=float)
+            err = np.array([r[f"{key}_scatter"] for r in mine], dtype=float)
+            ok = np.isfinite(y) & (y > 0)
+            ax.errorbar(x[ok], y[ok], yerr=err[ok], fmt="o-", capsize=3,
+                        label=mine[0]["label"])
+        ax.set_yscale("log")
+        ax.set_xlabel("extent of the sky [deg from the phase centre]")
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel(r"$L_I$ [%]")
+    axes[0].legend(fontsize=8)
     return save_figure(fig, path, pdf=pdf)
