@@ -25,7 +25,7 @@ from msleak.errors import ConfigurationError, InputError
 from msleak.io.ms import read_antennas, read_fields, read_times, read_used_antennas
 
 __all__ = ["model_rotation_measures", "is_model_spec", "parse_model_spec", "PiercePoints",
-           "pierce_points", "vertical_tec", "b_along_los", "station_rms",
+           "pierce_points", "mean_pierce_point", "vertical_tec", "b_along_los", "station_rms",
            "SAMPLE_STEP_S", "SHELL_HEIGHT_KM", "IRI_F107", "IRI_HEIGHTS_KM"]
 
 #: RMs are computed every SAMPLE_STEP_S seconds of each field's time span (both ends
@@ -144,8 +144,23 @@ def station_rms(positions_itrf, times_mjd_s, ra: float, dec: float, model: dict,
     ``positions_itrf`` (nstation, 3) m towards J2000 (``ra``, ``dec``) rad, through the
     shell at ``height_km``, with the model ``model`` (:func:`parse_model_spec`)."""
     pierce = pierce_points(positions_itrf, times_mjd_s, ra, dec, height_km)
-    tec = vertical_tec(pierce.lon_deg, pierce.lat_deg, times_mjd_s, model)
+    if model["tec"] == "iri":
+        # one IRI column per time, at the stations' mean pierce point: IRI's F1 layer is
+        # switched on by a threshold, which makes TEC jump by up to ~10 % between stations
+        # a few km apart (an artefact, not structure)
+        lon, lat = mean_pierce_point(pierce)
+        tec = vertical_tec(lon, lat, times_mjd_s, model)[None, :]
+    else:
+        tec = vertical_tec(pierce.lon_deg, pierce.lat_deg, times_mjd_s, model)
     return thin_shell_rm(tec, pierce.airmass, b_along_los(pierce))
+
+
+def mean_pierce_point(pierce: PiercePoints) -> tuple[np.ndarray, np.ndarray]:
+    """(lon, lat) deg (ntime,) of the mean of the stations' pierce points (on the sphere)."""
+    lon, lat = np.radians(pierce.lon_deg), np.radians(pierce.lat_deg)
+    xyz = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)]).mean(1)
+    return (np.degrees(np.arctan2(xyz[1], xyz[0])),
+            np.degrees(np.arctan2(xyz[2], np.hypot(xyz[0], xyz[1]))))
 
 
 def pierce_points(positions_itrf, times_mjd_s, ra: float, dec: float,

@@ -11,8 +11,10 @@ common to all stations leaves unpolarized calibrators unchanged, so calibration 
 remove it (docs/predict.md).
 
 Models of RM_p(t) (:class:`RotationMeasures`): a table (station, time) interpolated linearly
-in time, read from a CSV file (:func:`msleak.adapters.ionosphere.read_rm_table`) or drawn at
-random (:func:`random_rm`). :class:`IonosphereBeam` puts them in front of any beam model.
+in time, read from a CSV file (:func:`msleak.adapters.ionosphere.read_rm_table`), drawn at
+random (:func:`random_rm`) or computed for a thin shell (:func:`thin_shell_rm`, by
+:mod:`msleak.adapters.spinifex_rm`). :class:`IonosphereBeam` puts them in front of any beam
+model.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from astropy.time import Time
 from ms_helpers import one_error_line, phase_centre, table, write_sky
 from msleak.adapters.ionosphere import rotation_measures
 from msleak.adapters.spinifex_rm import SAMPLE_STEP_S, SHELL_HEIGHT_KM, b_along_los, \
-    parse_model_spec, pierce_points, station_rms, vertical_tec
+    mean_pierce_point, parse_model_spec, pierce_points, station_rms, vertical_tec
 from msleak.cli import cli
 from msleak.errors import ConfigurationError, InputError
 from msleak.verbs.predict import predict
@@ -110,7 +110,9 @@ def test_rm_is_the_thin_shell_formula():
     assert constant == pytest.approx(2.63e-13, rel=2e-3)
     model = parse_model_spec("spinifex")
     pierce = pierce_points(STATIONS, TIMES, RA, DEC)
-    tec = vertical_tec(pierce.lon_deg, pierce.lat_deg, TIMES, model)
+    lon, lat = mean_pierce_point(pierce)               # IRI: one column per time
+    assert np.all(np.abs(lat - pierce.lat_deg.mean(0)) < 1e-3)
+    tec = vertical_tec(lon, lat, TIMES, model)
     b_toward_observer = -b_along_los(pierce)
     expected = constant * tec * pierce.airmass * b_toward_observer
     np.testing.assert_allclose(station_rms(STATIONS, TIMES, RA, DEC, model), expected,
