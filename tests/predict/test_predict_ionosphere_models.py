@@ -26,6 +26,10 @@ from msleak.adapters.spinifex_rm import SAMPLE_STEP_S, SHELL_HEIGHT_KM, b_along_
 from msleak.cli import cli
 from msleak.errors import ConfigurationError, InputError
 from msleak.verbs.predict import predict
+from peers import require
+
+require("spinifex", "the thin-shell ionosphere models need spinifex: pip install "
+        "'msleak[ionosphere]'")
 
 #: LOFAR CS002 and a station 3 km east of it (ITRF, m); 3C196 on 2012-12-16 near transit
 STATIONS = np.array([[3826577.1, 461022.9, 5064892.8], [3826540.0, 463990.0, 5064670.0]])
