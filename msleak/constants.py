@@ -10,7 +10,8 @@ import numpy as np
 from astropy import constants as _const
 from astropy import units as _u
 
-__all__ = ["SPEED_OF_LIGHT", "BOLTZMANN", "JANSKY", "FREQ_21CM", "jy_per_kelvin"]
+__all__ = ["SPEED_OF_LIGHT", "BOLTZMANN", "JANSKY", "FREQ_21CM", "FARADAY_RM",
+           "jy_per_kelvin"]
 
 #: speed of light in vacuum [m s^-1] (exact)
 SPEED_OF_LIGHT: float = float(_const.c.to_value(_u.m / _u.s))
@@ -20,6 +21,10 @@ BOLTZMANN: float = float(_const.k_B.to_value(_u.J / _u.K))
 JANSKY: float = float((1 * _u.Jy).to_value(_u.W / _u.m**2 / _u.Hz))
 #: rest frequency of the 21-cm hyperfine line of neutral hydrogen [Hz]
 FREQ_21CM: float = 1420405751.768
+#: Faraday rotation per electron column and parallel field, e^3 / (8 pi^2 eps0 m_e^2 c^3)
+#: [rad m^-2 per (m^-2 T)]: RM = FARADAY_RM * integral n_e B_par dl (B_par towards the observer)
+FARADAY_RM: float = float((_const.e.si ** 3 / (8.0 * np.pi ** 2 * _const.eps0 * _const.m_e ** 2
+                                               * _const.c ** 3)).decompose().value)
 
 
 def jy_per_kelvin(freq_hz, solid_angle_sr: float) -> np.ndarray:

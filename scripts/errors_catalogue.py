@@ -90,6 +90,7 @@ ROUTES: list[tuple[str, str]] = [
     ("cli/predict.py:*", PREDICT), ("verbs/predict*.py:*", PREDICT), ("predict/*", PREDICT),
     ("io/columns.py:*", PREDICT), ("parallel/runner.py:parse_memory", PREDICT),
     ("adapters/ionosphere.py:*", PREDICT), ("beam/ionosphere.py:*", PREDICT),
+    ("adapters/spinifex_rm.py:*", PREDICT),
     ("cli/beam.py:*", BEAM), ("verbs/beam_maps.py:*", BEAM), ("_everybeam.py:*", BEAM),
     ("adapters/beams.py:*", BEAM), ("adapters/everybeam.py:*", BEAM), ("beam/*", BEAM),
     ("io/lofar.py:*", BEAM), ("io/mwa.py:*", BEAM), ("io/uvbeam.py:*", BEAM),

@@ -1,8 +1,10 @@
 """Ionospheric rotation measures for an MS (docs/predict.md, "Ionosphere").
 
 :func:`rotation_measures` turns a predict ``ionosphere`` setting into a
-:class:`~msleak.beam.ionosphere.RotationMeasures`: a CSV table (:func:`read_rm_table`) or
-``random:SEED`` (drawn over the MS's times, :func:`msleak.beam.ionosphere.random_rm`).
+:class:`~msleak.beam.ionosphere.RotationMeasures`: a CSV table (:func:`read_rm_table`),
+``random:SEED`` (drawn over the MS's times, :func:`msleak.beam.ionosphere.random_rm`), or a
+thin-shell model computed offline for the MS's stations, times and fields: ``spinifex``
+(IRI) or ``ionex:PATH`` (local IONEX maps), :mod:`msleak.adapters.spinifex_rm`.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak.adapters.spinifex_rm import is_model_spec, model_rotation_measures
 from msleak.beam.ionosphere import RotationMeasures, random_rm
 from msleak.errors import InputError
 from msleak.io.ms import read_times
@@ -25,14 +28,17 @@ RM_COLUMNS = ("time", "station", "rm")
 
 
 def rotation_measures(spec: str | os.PathLike, ms: str | os.PathLike) -> RotationMeasures:
-    """The RMs of ``spec``: ``random:SEED`` or the path of a CSV table (:data:`RM_COLUMNS`).
+    """The RMs of ``spec``: ``random:SEED``, ``spinifex[:f107=SFU]``, ``ionex:PATH[,PATH]``
+    or the path of a CSV table (:data:`RM_COLUMNS`).
 
     Raises
     ------
     InputError
-        A spec that is neither, or a table that cannot be read.
+        A spec that is none of these, or a table or map that cannot be read.
     """
     text = str(spec)
+    if is_model_spec(text) and not Path(text).is_file():
+        return model_rotation_measures(text, ms)
     if text.startswith("random:"):
         seed = text.partition(":")[2]
         if not seed.isdigit():
@@ -41,9 +47,9 @@ def rotation_measures(spec: str | os.PathLike, ms: str | os.PathLike) -> Rotatio
         return random_rm(read_times(ms), int(seed), label=text)
     path = Path(text)
     if not path.is_file():
-        raise InputError(f"ionosphere {text!r} is neither a file nor random:SEED; give a CSV "
-                         f"table with the columns {', '.join(RM_COLUMNS)}, or random:SEED",
-                         param="ionosphere")
+        raise InputError(f"ionosphere {text!r} is not a file; give a CSV table with the "
+                         f"columns {', '.join(RM_COLUMNS)}, random:SEED, spinifex or "
+                         "ionex:PATH", param="ionosphere")
     return read_rm_table(path)
 
 

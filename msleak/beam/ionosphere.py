@@ -11,8 +11,10 @@ common to all stations leaves unpolarized calibrators unchanged, so calibration 
 remove it (docs/predict.md).
 
 Models of RM_p(t) (:class:`RotationMeasures`): a table (station, time) interpolated linearly
-in time, read from a CSV file (:func:`msleak.adapters.ionosphere.read_rm_table`) or drawn at
-random (:func:`random_rm`). :class:`IonosphereBeam` puts them in front of any beam model.
+in time, read from a CSV file (:func:`msleak.adapters.ionosphere.read_rm_table`), drawn at
+random (:func:`random_rm`) or computed for a thin shell (:func:`thin_shell_rm`, by
+:mod:`msleak.adapters.spinifex_rm`). :class:`IonosphereBeam` puts them in front of any beam
+model.
 """
 
 from __future__ import annotations
@@ -22,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from msleak.beam.base import BeamModel
-from msleak.constants import SPEED_OF_LIGHT
+from msleak.constants import FARADAY_RM, SPEED_OF_LIGHT
 from msleak.errors import InputError
 
-__all__ = ["RotationMeasures", "IonosphereBeam", "faraday_rotation", "random_rm",
+__all__ = ["RotationMeasures", "IonosphereBeam", "faraday_rotation", "random_rm", "thin_shell_rm",
            "RANDOM_RM_MEAN", "RANDOM_RM_RMS", "RANDOM_RM_INDEX"]
 
 #: ``random:SEED``: the mean (rad m^-2) of the RM drawn at random: a mid-latitude night
@@ -109,6 +111,18 @@ def faraday_rotation(rm: np.ndarray, freq_hz: np.ndarray) -> np.ndarray:
     phi = np.asarray(rm, dtype=np.float64)[:, :, None] * lam2[None, None, :]
     c, s = np.cos(phi), np.sin(phi)
     return np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=-2)
+
+
+def thin_shell_rm(vtec_m2, airmass, b_los_t) -> np.ndarray:
+    """RM (rad m^-2) of a thin ionospheric shell: ``FARADAY_RM * vtec * airmass * B_par``.
+
+    ``vtec_m2`` is the vertical electron column at the pierce point (m^-2), ``airmass`` the
+    slant factor there, ``b_los_t`` the geomagnetic field (T) along the line of sight from
+    the observer towards the source; the field towards the observer is its negative, so a
+    northern-hemisphere field (pointing down) gives a positive RM. Arrays broadcast.
+    """
+    return -FARADAY_RM * (np.asarray(vtec_m2, dtype=np.float64) * np.asarray(airmass)
+                          * np.asarray(b_los_t, dtype=np.float64))
 
 
 def random_rm(times: np.ndarray, seed: int, *, mean: float = RANDOM_RM_MEAN,

@@ -64,9 +64,10 @@ def _noise(ctx, param, value):
 @click.option("--quick", is_flag=True, help="Test size for every setting not given: 8 "
               "stations, 0.2 h at 360 s, 10 channels, a 6 deg sky, 2 realisations (30 s on "
               "2 cores).")
-@click.option("--ionosphere", default=None, metavar="random|CSV",
+@click.option("--ionosphere", default=None, metavar="random|spinifex|ionex:PATH|CSV",
               help="Add the instrument's budget runs with ionospheric Faraday rotation on the "
-              "first sky: random (a drifting screen per --instrument-seeds realisation) or a "
+              "first sky: random (a drifting screen per --instrument-seeds realisation), "
+              "spinifex or ionex:PATH (computed offline for each telescope's MS, once) or a "
               "CSV table of RMs (msleak predict --ionosphere).")
 @click.option("--beam-errors", default=None,
               metavar="failed=F,rotation=DEG[,amplitude=A,phase=DEG,level=element|tile]",

@@ -66,10 +66,11 @@ def _observed(ctx, param, values):
               help="Override the integration time [120 s; --quick: 600 s].")
 @click.option("--nchan", type=click.IntRange(8, None), default=None, metavar="N",
               help="Override the number of channels of the MSs and the sky [50].")
-@click.option("--ionosphere", default=None, metavar="random|CSV",
+@click.option("--ionosphere", default=None, metavar="random|spinifex|ionex:PATH|CSV",
               help="Add the instrument's budget runs with ionospheric Faraday rotation: "
-              "random (a drifting screen, one per --instrument-seeds realisation) or a CSV "
-              "table of RMs (msleak predict --ionosphere).")
+              "random (a drifting screen, one per --instrument-seeds realisation), spinifex "
+              "or ionex:PATH (RMs computed offline for each MS, once) or a CSV table of RMs "
+              "(msleak predict --ionosphere).")
 @click.option("--beam-errors", default=None,
               metavar="failed=F,rotation=DEG[,amplitude=A,phase=DEG,level=element|tile]",
               help="Add budget runs with beam-model errors (msleak predict --beam-errors, "

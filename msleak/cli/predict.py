@@ -42,12 +42,15 @@ def _split(_ctx, _param, value):
               help="With --beam dipole: station diameter (m) of its Airy station factor "
                    "[default: ANTENNA::DISH_DIAMETER].")
 @beam_model_options
-@click.option("--ionosphere", metavar="CSV|random:SEED", default=None,
+@click.option("--ionosphere", metavar="CSV|random:SEED|spinifex|ionex:PATH", default=None,
               help="Ionospheric Faraday rotation in front of each station's beam: a CSV "
                    "table with the columns time (UTC ISO or MJD seconds), station (a name, "
-                   "or * for all) and rm (rad/m^2), interpolated in time, or random:SEED "
-                   "(a drifting screen of mean 1 and rms 0.3 rad/m^2; docs/predict.md, "
-                   "\"Ionosphere\").")
+                   "or * for all) and rm (rad/m^2), interpolated in time; random:SEED "
+                   "(a drifting screen of mean 1 and rms 0.3 rad/m^2); or a thin shell at "
+                   "450 km computed offline per station towards the phase centre, every "
+                   "5 min: spinifex (IRI climatology, F10.7 100 sfu; spinifex:f107=SFU) or "
+                   "ionex:PATH[,PATH] (local IONEX maps); needs pip install "
+                   "'msleak[ionosphere]' (docs/predict.md, \"Ionosphere\").")
 @click.option("--beam-errors",
               metavar="failed=F,rotation=DEG,amplitude=A,phase=DEG,level=element|tile,seed=N",
               default=None,

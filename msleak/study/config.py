@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from msleak.adapters.spinifex_rm import is_model_spec, parse_model_spec
 from msleak.errors import InputError
 
 __all__ = ["StudyConfig", "Instrument", "FIELDS_OF_VIEW", "RESOLUTIONS", "PAPER_UV_RANGE",
@@ -44,10 +45,11 @@ def nyquist_npix(fov_deg: float, uv_max: float) -> int:
 @dataclass(frozen=True)
 class Instrument:
     """What a real observation adds, for the budget runs of ``msleak paper`` and ``msleak
-    forecast`` (docs/paper.md, "The instrument's budget"): a CSV table of RMs or
-    ``"random"`` (``random:N`` per realisation), beam errors without their seed
+    forecast`` (docs/paper.md, "The instrument's budget"): a CSV table of RMs, a model
+    computed for the MS (``"spinifex"``, ``"ionex:PATH"``) or ``"random"`` (``random:N`` per
+    realisation), beam errors without their seed
     (``"failed=F,rotation=DEG"``), thermal noise (SEFD, Jy); each is predicted ``seeds``
-    times (a CSV table once)."""
+    times (a table or model once)."""
 
     ionosphere: str | None = None
     beam_errors: str | None = None
@@ -61,8 +63,11 @@ class Instrument:
                              param="instrument_seeds")
         if self.ionosphere is not None and self.ionosphere != "random" \
                 and not Path(self.ionosphere).is_file():
-            raise InputError(f"ionosphere {self.ionosphere!r} is neither random nor a CSV "
-                             "table of RMs", param="ionosphere")
+            if not is_model_spec(self.ionosphere):
+                raise InputError(f"ionosphere {self.ionosphere!r} is neither random, "
+                                 "spinifex, ionex:PATH nor a CSV table of RMs",
+                                 param="ionosphere")
+            parse_model_spec(self.ionosphere)
         if self.beam_errors is not None:
             from msleak.beam.errors import BeamErrors
 
@@ -120,7 +125,8 @@ class StudyConfig:
     resolution: str = "paper"
     sky_fov_deg: float | None = None
     #: what a real observation adds (docs/paper.md, "The instrument's budget"): a CSV table
-    #: of RMs or ``"random"`` (``random:N`` per realisation), beam errors without their
+    #: of RMs, ``"spinifex"`` or ``"ionex:PATH"`` (a model for the MS, predicted once), or
+    #: ``"random"`` (``random:N`` per realisation), beam errors without their
     #: seed (``"failed=F,rotation=DEG"``), thermal noise (SEFD, Jy); each is predicted
     #: ``instrument_seeds`` times (a CSV table once) at the largest field of view
     ionosphere: str | None = None

@@ -40,10 +40,21 @@ def test_budget_steps(tmp_path):
                                                             fields=("3c196",)))))
 
 
+def test_a_model_ionosphere_is_one_run(tmp_path):
+    cfg = StudyConfig(outdir=tmp_path, fields=("3c196",), ionosphere="spinifex",
+                      instrument_seeds=3)
+    runs = [s for s in study_steps(cfg) if s.name.startswith("predict-3c196-ionosphere")]
+    assert [s.name for s in runs] == ["predict-3c196-ionosphere1"]
+    args = [str(a) for a in runs[0].args]
+    assert args[args.index("--ionosphere") + 1] == "spinifex"
+
+
 @pytest.mark.parametrize("kwargs,message", [
     (dict(beam_errors="failed=0.1,seed=3"), "draws beam_errors' seed per realisation"),
     (dict(beam_errors="broken=1"), "give failed=FRACTION"),
-    (dict(ionosphere="nowhere.csv"), "neither random nor a CSV table"),
+    (dict(ionosphere="nowhere.csv"), "neither random, spinifex, ionex:PATH nor a CSV table"),
+    (dict(ionosphere="spinifex:uqr"), "download an IONEX file yourself"),
+    (dict(ionosphere="ionex:nowhere.inx"), "no IONEX file nowhere.inx"),
     (dict(noise_sefd=0.0), "noise_sefd must be positive"),
     (dict(instrument_seeds=0), "instrument_seeds must be at least 1"),
 ])
