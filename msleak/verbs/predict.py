@@ -30,7 +30,8 @@ from msleak.io.ms import append_history, check_ms, open_table
 from msleak.io.products import call_record
 from msleak.parallel import open_runner
 from msleak.parallel.runner import WorkerLost, parse_memory
-from msleak.predict.options import DegridOptions, Method
+from msleak.predict.options import (MIN_ELEVATION_DEG, DegridOptions, Method,
+                                    check_min_elevation)
 from msleak.verbs import predict_chunks as chunks
 from msleak.verbs import predict_run as runstate
 from msleak.verbs.predict_plan import PredictResult, make_plan, make_targets
@@ -48,30 +49,31 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             column: str | None | Sequence[str] = "MODEL_DATA",
             fov: float | None | Sequence[float | None] = None, beam: str = "everybeam",
             diameter: float | None = None, element_model: str | None = None,
-            beam_file: str | os.PathLike | None = None,
+            beam_file: str | os.PathLike | None = None, min_elevation: float = MIN_ELEVATION_DEG,
             ionosphere: str | os.PathLike | None = None, beam_errors: str | None = None,
             centre_correction: bool = True, interpolate_frequency: bool = False,
-            double: bool = False, double_column: bool = False,
+            double: bool = False, double_column: bool = False, flat_spectrum: bool = False,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
-            workers: int | None = None, progress: bool = False,
-            method: Method = _DEGRID.method, epsilon: float = _DEGRID.epsilon,
-            nsub: int | None = _DEGRID.nsub):
+            workers: int | None = None, progress: bool = False, method: Method = _DEGRID.method,
+            epsilon: float = _DEGRID.epsilon, nsub: int | None = _DEGRID.nsub,
+            extent: float | None | Sequence[float | None] = None):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
     Parameters
     ----------
     ms : path or sequence of paths
         Measurement Set(s), written in place (e.g. one per subband; each gets every sky).
-    sky : path, sky Dataset, SkyCube, PointSources, or a sequence of them
-        A FITS cube or makesourcedb file, or in memory (:func:`msleak.make_sky`'s Dataset);
-        several skies are predicted in one pass, each into its own column (docs/predict.md).
+    sky : path, sky Dataset, SkyCube, PointSources, HealpixSky, or a sequence of them
+        A FITS cube, makesourcedb file, HEALPix map or SkyH5 file, or in memory; several
+        skies are predicted in one pass, each into its own column (docs/predict.md).
     column : str, sequence of str, or None
         Target column of each sky (all different), created like DATA if missing (DATA needs
         ``overwrite_data``); None: the MS is opened read-only, the visibilities returned.
-    fov : float or sequence of float, optional
-        Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
+    fov, extent : float or sequence of float, optional
+        Keep the central ``fov`` x ``fov`` deg, and the pixels (HEALPix) or sources
+        (makesourcedb) within ``extent`` deg of the phase centre; once or once per sky.
     beam, diameter, element_model, beam_file, ionosphere, beam_errors
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
         'dipole' or 'none'), its options, the ionospheric Faraday rotation in front of it
@@ -92,6 +94,9 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         Allow ``column="DATA"``; start over instead of resuming an interrupted run.
     method, epsilon, nsub
         How pixel skies are predicted (:class:`msleak.predict.options.DegridOptions`).
+    min_elevation, flat_spectrum
+        HEALPix skies: pixels below ``min_elevation`` deg at a time add nothing then (seen
+        from the array centre); a map of one frequency holds at every channel.
 
     Returns
     -------
@@ -103,18 +108,14 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     t_start = _time.perf_counter()
     single_ms = isinstance(ms, (str, os.PathLike))
     paths = _check_paths([ms] if single_ms else list(ms))
-    targets = make_targets(sky, column, fov, overwrite_data)
+    min_elevation = check_min_elevation(min_elevation)
+    targets = make_targets(sky, column, fov, overwrite_data, extent, flat_spectrum)
     budget = parse_memory(memory_limit)
     options = beam_options(beam, diameter=diameter, element_model=element_model,
-                           beam_file=beam_file, ionosphere=ionosphere,
-                           beam_errors=beam_errors)
+                           beam_file=beam_file, ionosphere=ionosphere, beam_errors=beam_errors)
     _check_options(paths, targets, double_column)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
-    runs = [runstate.new_run(make_plan(
-        p, targets, beam=beam, centre_correction=centre_correction, dtype=dtype,
-        interpolate_frequency=interpolate_frequency, field_sel=field, spw_sel=spw,
-        beam_options=options, double_column=double_column,
-        degrid=DegridOptions(method, epsilon, nsub))) for p in paths]
+    runs = _plan_runs(paths, targets, dtype, options, {**given, "min_elevation": min_elevation})
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -124,6 +125,18 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     _run(runs, scheduler, workers, budget, restart=restart, **args)
     results = _append_history(runs, call_record(predict, given))
     return results[0] if single_ms and one_sky else results
+
+
+def _plan_runs(paths: list[Path], targets: list, dtype, options: dict, args: dict) -> list:
+    """A run of every MS, planned (:func:`make_plan`) from the verb's arguments ``args``
+    with the beam options ``options``, before anything is written."""
+    return [runstate.new_run(make_plan(
+        p, targets, beam=args["beam"], centre_correction=args["centre_correction"],
+        dtype=dtype, interpolate_frequency=args["interpolate_frequency"],
+        field_sel=args["field"], spw_sel=args["spw"], beam_options=options,
+        double_column=args["double_column"], min_elevation=args["min_elevation"],
+        degrid=DegridOptions(args["method"], args["epsilon"], args["nsub"]),
+        flat_spectrum=args["flat_spectrum"])) for p in paths]
 
 
 def _check_options(paths: list[Path], targets: list, double_column: bool) -> None:
