@@ -298,9 +298,10 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                     "stored)", ms, d, ",".join(feeds[d].names))
     _check_rows(ms, groups)
     all_sky = any(isinstance(t.sky, HealpixSky) for t in targets)
-    site = (_array_site(ms, groups) if all_sky or (beam != "none" and degrid.method != "direct")
-            else (None, 0.0))
-    horizon = (Horizon(float(np.radians(min_elevation)), tuple(float(x) for x in site[0]))
+    probe = beam != "none" and degrid.method != "direct"     # the degridder's zenith probe
+    array = _array_site(ms, groups) if all_sky or probe else (None, 0.0)
+    site = array if probe else (None, 0.0)
+    horizon = (Horizon(float(np.radians(min_elevation)), tuple(float(x) for x in array[0]))
                if all_sky else None)
     skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
                                   interpolate_frequency, degrid, site,

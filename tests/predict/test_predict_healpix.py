@@ -268,11 +268,20 @@ def test_pixel_below_min_elevation_contributes_nothing(ms, beam):
     assert np.abs(both.values[up] - one.values[up]).max() > 1e-3 * peak
 
 
-def test_rows_with_their_own_uvw_keep_the_horizon(ms, tmp_path):
-    """Rows whose UVW are moved by 5 cm are predicted per baseline: the lit pixel still
-    equals its point source there, and the pixel below the horizon still gives zero."""
+@pytest.mark.parametrize("beam", ["none", "dipole"])
+def test_rows_with_their_own_uvw_keep_the_horizon(ms, tmp_path, beam, monkeypatch):
+    """Rows whose UVW are moved by 5 cm are predicted per baseline: there too a lit pixel
+    equals its point source, one rising through ``min_elevation`` gives exact zeros while
+    below it and its point source's visibilities once above, and one always below the
+    horizon gives zeros."""
     import shutil
 
+    from msleak.predict import chunks
+
+    summed = []
+    per_baseline = chunks.predict_rows
+    monkeypatch.setattr(chunks, "predict_rows", lambda jones, tidx, *a, **k: (
+        summed.append(np.size(tidx)), per_baseline(jones, tidx, *a, **k))[1])
     moved = shutil.copytree(ms, tmp_path / "moved.ms")
     with table(moved, readonly=False) as t:
         uvw = t.getcol("UVW")
@@ -284,17 +293,25 @@ def test_rows_with_their_own_uvw_keep_the_horizon(ms, tmp_path):
     elev = _elevations(moved, ra, dec)
     high = int(np.argmax(elev.min(axis=0)))
     low = int(np.flatnonzero(elev.max(axis=0) < -20.0)[0])
-    stokes = np.zeros((4, freq.size, NPIX))
-    stokes[1:3, :, [high, low]] = 2.0
-    healpix = _run(moved, _sky(stokes, freq), beam="dipole")
+    rising, threshold, _ = _crossing(elev, 10.0, 30.0)
     flux = np.zeros((1, freq.size, 4))
     flux[0, :, 1:3] = 2.0 * _jy_per_k(freq)[:, None]
-    point = _run(moved, PointSources(ra=ra[[high]], dec=dec[[high]], freq=freq, stokes=flux),
-                 beam="dipole")
-    peak = np.abs(point.values).max()
-    np.testing.assert_allclose(healpix.values, point.values, rtol=0, atol=1e-10 * peak)
-    stokes[:, :, high] = 0
-    assert np.all(_run(moved, _sky(stokes, freq)).values == 0)   # no beam: no other zero
+    for pixel, limit in ((high, 0.0), (rising, threshold)):
+        stokes = np.zeros((4, freq.size, NPIX))
+        stokes[1:3, :, [pixel, low]] = 2.0
+        healpix = _run(moved, _sky(stokes, freq), beam=beam, min_elevation=limit)
+        point = _run(moved, PointSources(ra=ra[[pixel]], dec=dec[[pixel]], freq=freq,
+                                         stokes=flux), beam=beam)
+        with table(moved) as t:
+            times = np.unique(t.getcol("TIME"))
+        up = elev[np.searchsorted(times, healpix.time.values), pixel] >= limit
+        assert np.all(healpix.values[~up] == 0)
+        peak = np.abs(point.values).max()
+        np.testing.assert_allclose(healpix.values[up], point.values[up], rtol=0,
+                                   atol=1e-10 * peak)
+        assert np.isin(np.flatnonzero(up), rows).any()           # moved rows among them
+    assert up.any() and not up.all()
+    assert sum(summed) >= 2 * rows.size                 # they were summed per baseline
 
 
 def test_extent_keeps_the_pixels_within_it(ms, tmp_path):
