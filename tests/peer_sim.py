@@ -1,11 +1,11 @@
 """The visibility simulators pyuvsim and matvis, run on the metadata of an msleak MS.
 
-Used by tests/peers/test_peer_simulators.py. Each peer gets the MS's antenna positions (as
-East, North, Up offsets from their mean position), TIME centres, channel frequencies, the
-same point sources and the same beam, and returns drift-scan visibilities that this module
-phases to the MS's phase centre. How each peer's conventions map onto msleak's (baseline
-sign, feed order, Stokes factor, polarization basis) is in docs/conventions.md, "Peer
-simulators (matvis, pyuvsim)".
+Used by tests/peers/test_peer_simulators.py and tests/peers/test_peer_healpix.py. Each
+peer gets the MS's antenna positions (as East, North, Up offsets from their mean
+position), TIME centres, channel frequencies, the same sources and the same beam, and
+returns drift-scan visibilities that this module phases to the MS's phase centre. How
+each peer's conventions map onto msleak's (baseline sign, feed order, Stokes factor,
+polarization basis) is in docs/conventions.md, "Peer simulators (matvis, pyuvsim)".
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
+import pytest
 
 from ms_helpers import C, channel_freqs, phase_centre
 
@@ -109,11 +110,20 @@ def pyuvsim_visibilities(obs: Observation, beam, ra, dec, stokes) -> np.ndarray:
     """
     import astropy.units as u
     from pyradiosky import SkyModel
-    from pyuvsim import Antenna, Baseline, BeamList, Telescope, UVEngine, UVTask
 
     sky = SkyModel(name=[f"s{i}" for i in range(len(ra))], skycoord=j2000(ra, dec),
                    stokes=np.transpose(stokes, (2, 1, 0)) * u.Jy, spectral_type="full",
                    freq_array=obs.freqs * u.Hz)
+    return pyuvsim_sky_visibilities(obs, beam, sky)
+
+
+def pyuvsim_sky_visibilities(obs: Observation, beam, sky) -> np.ndarray:
+    """:func:`pyuvsim_visibilities` of a pyradiosky SkyModel of point components with
+    spectral type ``full`` at the MS channels (a HEALPix model: after its
+    ``healpix_to_point()``, as pyuvsim's own set-up does); same result layout."""
+    import astropy.units as u
+    from pyuvsim import Antenna, Baseline, BeamList, Telescope, UVEngine, UVTask
+
     telescope = Telescope("peer", obs.location, BeamList([beam]))
     antennas = [Antenna(f"a{i}", i, obs.enu[i], 0) for i in range(len(obs.enu))]
     nant, nchan = len(antennas), len(obs.freqs)
@@ -269,3 +279,76 @@ def _xy_beam(name: str, efield):
     cls = type(name, (AnalyticBeam,), {"__annotations__": {}, "basis_vector_type": "az_za",
                                        "validate": validate, "_efield_eval": efield})
     return dataclass(kw_only=True, eq=False)(cls)()
+
+
+#: The two ways a beam's azimuth component can be handed to pyuvsim: as the beam gives it,
+#: or negated (:func:`mirrored_azimuth`). Which one the installed pyuvsim needs for
+#: polarized sources is decided against geometry alone (:func:`geometry_verdict` of
+#: :func:`short_dipole_errors`).
+AZIMUTH_HANDLING = {"as given": lambda beam: beam, "mirrored": mirrored_azimuth}
+#: Q, U sign conventions tried with each handling: only the identity may agree
+QU_SIGNS = ((1, 1, 1, 1), (1, -1, 1, 1), (1, 1, -1, 1), (1, -1, -1, 1))
+#: pyuvsim against the dipole geometry, in units of a unit source: pyradiosky turns the
+#: field to alt/az by its frame axes' average rotation plus the shortest turn onto each
+#: apparent position, not by the central differences used here; they differ by 1.7e-5
+#: (printed), a wrong azimuth sign by 1.1 and a wrong Q or U sign by 0.6 to 1.9
+GEOMETRY_TOLERANCE = 1e-4
+
+
+def short_dipole_errors() -> dict:
+    """{(handling, Q/U signs): largest |pyuvsim - geometry|} for five polarized sources
+    seen by pyuvdata's analytic short dipoles on one zero-length baseline, against the
+    projection of each dipole's axis on each source's electric field computed here from
+    astropy's AltAz alone (no msleak)."""
+    import astropy.units as u
+    from astropy.coordinates import AltAz, EarthLocation, SkyCoord
+    from pyuvdata.analytic_beam import ShortDipoleBeam
+
+    location = EarthLocation.from_geodetic(21.4283 * u.deg, -30.7215 * u.deg, 1051.7 * u.m)
+    t = 58000.25 * 86400.0
+    frame = AltAz(obstime=astropy_time(t), location=location)
+    az = np.radians([30.0, 120.0, 210.0, 300.0, 75.0])          # North through East
+    alt = np.radians([60.0, 45.0, 70.0, 55.0, 80.0])
+    chi = np.radians([20.0, -35.0, 70.0, 5.0, -80.0])           # IAU, North through East
+    radec = SkyCoord(az=az * u.rad, alt=alt * u.rad, frame=frame).transform_to(
+        j2000(0.0, 0.0).frame)
+    ra, dec = radec.ra.rad, radec.dec.rad
+    # each source's sky North and East in (East, North, Up): central differences of 1e-5
+    # rad (truncation ~1e-10; astropy's rounding, ~1e-12 per vector, adds ~1e-7)
+    step = 1e-5
+    north = (topocentric(ra, dec + step, t, location)
+             - topocentric(ra, dec - step, t, location))
+    east = (topocentric(ra + step / np.cos(dec), dec, t, location)
+            - topocentric(ra - step / np.cos(dec), dec, t, location))
+    north /= np.linalg.norm(north, axis=1)[:, None]
+    east /= np.linalg.norm(east, axis=1)[:, None]
+    field = np.cos(chi)[:, None] * north + np.sin(chi)[:, None] * east    # (nsrc, 3)
+    # feeds x (East-West dipole) and y (North-South): V_ab = sum I (a . e)(b . e)
+    volts = field[:, :2]                                        # (nsrc, [x, y])
+    expected = np.einsum("sa,sb->ab", volts, volts)
+
+    stokes = np.stack([np.ones(5), np.cos(2 * chi), np.sin(2 * chi), np.zeros(5)], -1)
+    obs = Observation(positions=np.zeros((2, 3)), times=np.array([t]),
+                      freqs=np.array([150e6]), phase_centre=(ra[0], dec[0]),
+                      location=location, enu=np.zeros((2, 3)))   # one zero-length baseline
+    errors = {}
+    for name, handle in AZIMUTH_HANDLING.items():
+        for signs in QU_SIGNS:
+            got = pyuvsim_visibilities(obs, handle(ShortDipoleBeam()), ra, dec,
+                                       (stokes * np.array(signs))[:, None, :])[0, 0, 1, 0]
+            errors[name, signs] = float(np.abs(got - expected).max())
+    return errors
+
+
+def geometry_verdict(errors: dict) -> tuple[str, str]:
+    """(the handling that agrees with the geometry, the other one); fails unless exactly
+    one handling agrees, and with Q and U as they are."""
+    for (name, signs), error in errors.items():
+        print(f"short dipoles, pyuvsim, azimuth {name}, signs {signs}: {error:.2e}")
+    agree = [key for key, error in errors.items() if error < GEOMETRY_TOLERANCE]
+    if len(agree) != 1 or agree[0][1] != QU_SIGNS[0]:
+        pytest.fail(f"pyuvsim with short dipoles: {agree or 'no'} (azimuth handling, Q/U "
+                    f"signs) agree with the geometry; exactly one handling with Q, U as "
+                    f"given should: {errors}", pytrace=False)
+    right = agree[0][0]
+    return right, next(name for name in AZIMUTH_HANDLING if name != right)

@@ -11,7 +11,7 @@ from msleak.beam.base import BEAM_NAMES
 from msleak.cli._common import MemorySize, beam_model_options
 from msleak.parallel.options import parallel_options
 from msleak.predict.gridsky import AUTO_MIN_PIXELS
-from msleak.predict.options import METHODS, DegridOptions
+from msleak.predict.options import METHODS, MIN_ELEVATION_DEG, DegridOptions
 from msleak.verbs.predict import predict as run
 
 __all__ = ["predict"]
@@ -27,12 +27,23 @@ def _split(_ctx, _param, value):
 @click.argument("ms", nargs=-1, required=True, type=click.Path())
 @click.option("--sky", "sky", required=True, multiple=True, type=click.Path(dir_okay=False),
               help="Sky model: a FITS cube (Q/U[/I/V] x frequency, each voxel a point source "
-                   "at its channel; Jy/pixel or K) or a makesourcedb text file (Jy). "
-                   "Repeat it to predict several skies in one pass, each into the --column "
-                   "given in the same position.")
+                   "at its channel; Jy/pixel or K), a makesourcedb text file (Jy), or an "
+                   "all-sky HEALPix sky (SkyH5, or a HEALPix FITS map; K or Jy/sr; every "
+                   "pixel above the horizon). Repeat it to predict several skies in one "
+                   "pass, each into the --column given in the same position.")
 @click.option("--fov", "fov", type=float, multiple=True, metavar="DEG",
               help="Keep the central DEG x DEG degrees of the sky (default: all of it); "
                    "once for every sky, or once per --sky in the same order.")
+@click.option("--extent", "extent", type=float, multiple=True, metavar="DEG",
+              help="Keep the pixels of a HEALPix sky (or the sources of a makesourcedb "
+                   "sky) within DEG degrees of the phase centre (default: the whole sky); "
+                   "once for every sky, or once per --sky in the same order.")
+@click.option("--min-elevation", "min_elevation", type=float, default=MIN_ELEVATION_DEG,
+              show_default=True, metavar="DEG",
+              help="At each time, leave out the pixels of a HEALPix sky below DEG degrees "
+                   "of elevation, seen from the array centre.")
+@click.option("--flat-spectrum", is_flag=True,
+              help="Use a HEALPix map of one frequency (or none) at every channel.")
 @click.option("--beam", type=click.Choice(BEAM_NAMES),
               default="everybeam", show_default=True,
               help="Station beam: EveryBeam (LOFAR and SKA-Low through msleak's fast paths), "
@@ -109,8 +120,8 @@ def _split(_ctx, _param, value):
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: when stderr is a terminal).")
 @parallel_options
-def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, beam_errors,
-            noise, noise_seed, column,
+def predict(ms, sky, fov, extent, min_elevation, flat_spectrum, beam, diameter,
+            element_model, beam_file, ionosphere, beam_errors, noise, noise_seed, column,
             centre_correction, interpolate_frequency,
             double, double_column, method, epsilon, nsub, memory_limit, overwrite_data, field, spw,
             restart, progress, scheduler, workers):
@@ -133,6 +144,10 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, 
     with exactly the same RA and Dec, as in crops of one cube or cubes on the same pixel
     grid, count once); each column equals a run with its sky alone (docs/predict.md).
 
+    HEALPix skies (SkyH5, HEALPix FITS maps) are predicted pixel by pixel to the horizon:
+    every pixel above --min-elevation at a time (seen from the array centre) is a source
+    at its direction (l, m, n), n > -1 (docs/predict.md, "All-sky HEALPix skies").
+
     Pixel skies (FITS cubes) are predicted pixel by pixel (--method direct) or by
     image-domain gridding at a cost independent of the pixel count (--method degrid, to
     a relative accuracy --epsilon, the subgrid sized from the beam's measured spectrum);
@@ -147,6 +162,7 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, 
           --sky sky9.fits --column MODEL_9DEG --sky sky4.fits --column MODEL_4DEG
       msleak predict obs.ms --sky s1.fits --column M1 --sky s2.fits --column M2 --fov 4
       msleak predict SB*.ms --sky sky.fits --scheduler tcp://head:8786
+      msleak predict obs.ms --sky allsky.skyh5 --extent 60 --min-elevation 10
     """
     results = run(list(ms), list(sky), column=list(column) or ["MODEL_DATA"] * (len(sky) == 1),
                   fov=list(fov) or None, beam=beam, diameter=diameter,
@@ -156,7 +172,8 @@ def predict(ms, sky, fov, beam, diameter, element_model, beam_file, ionosphere, 
                   double=double, double_column=double_column, field=field, spw=spw, memory_limit=memory_limit,
                   overwrite_data=overwrite_data, restart=restart, scheduler=scheduler,
                   workers=workers, progress=sys.stderr.isatty() if progress is None else progress,
-                  method=method, epsilon=epsilon, nsub=nsub,
+                  method=method, epsilon=epsilon, nsub=nsub, extent=list(extent) or None,
+                  min_elevation=min_elevation, flat_spectrum=flat_spectrum,
                   noise=None if noise is None else read_sefd(noise, "noise"),
                   noise_seed=noise_seed)
     for result in results:

@@ -25,6 +25,7 @@ from msleak.predict.baselines import predict_rows
 from msleak.predict.components import SkySet
 from msleak.predict.gridsky import (PIXEL_BEAM_BYTES, degrid_geometry, degrid_visibilities,
                                     worth_degridding, zenith_near)
+from msleak.predict.horizon import mask_jones, visible_blocks
 from msleak.predict.stations import station_coordinates, uvw_tolerance
 
 __all__ = ["plan_chunks", "predict_chunk", "add_time", "direct_block", "LONG_CHANNELS"]
@@ -94,7 +95,7 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
     """
     tick = _time.perf_counter()
     skies = [(comp.index[k], comp.skies[k]) for k in active]
-    reach = np.concatenate([comp.lmn1] + [sky.lmn1 for _, sky in skies if sky.grid])
+    reach = np.concatenate([comp.lmn1] + [sky.lmn1 for _, sky in skies if sky.own])
     xyz, off = station_coordinates(tidx, p, q, uvw, times.size, stations.size,
                                    tolerance_m=uvw_tolerance(freq.max(), reach))
     fast = np.flatnonzero(~off) if off.any() else slice(None)
@@ -109,7 +110,8 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
         timings.setdefault("notes", []).extend(notes)
     use_degrid = [g is not None and worth_degridding(sky.grid, g, xyz, *rows, freq)
                   for g, (_, sky) in zip(geometry, skies)]
-    direct = [(index, sky) for index, sky in skies if sky.grid is None]
+    direct = [(index, sky) for index, sky in skies if not sky.own]
+    views = [_visible(sky, times, stations, freq) for _, sky in skies]
     outs = [np.empty((tidx.size, freq.size, 4), dtype=dtype) for _ in skies]
     for c0 in range(0, freq.size, nc_chunk):
         c1 = min(freq.size, c0 + nc_chunk)
@@ -123,10 +125,15 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                 [(index, sky.w[:, c0:c1], sky.sign[:, c0:c1]) for index, sky in direct],
                 dtype=dtype))
             for out, (_, sky) in zip(outs, skies):
-                if sky.grid is None:
+                if not sky.own:
                     out[fast, c0:c1] = kernels.gather_rows(next(grams), tidx[fast], p[fast],
                                                            q[fast], jones_left=left)
             del grams
+        for out, view, (_, sky) in zip(outs, views, skies):
+            if view is not None and not off.all():
+                out[fast, c0:c1] = _pixel_direct(sky, beam_model, fmeta, times,
+                                                 slice(c0, c1), freq, stations, xyz, rows,
+                                                 centre_correction, dtype, view)
         tick = add_time(timings, "kernel", tick)
         for out, (_, sky), use, geom, close in zip(outs, skies, use_degrid, geometry, near):
             if sky.grid is not None and not off.all():
@@ -135,26 +142,37 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                                               xyz, rows, centre_correction, dtype)
         tick = add_time(timings, "degrid", tick)
         if off.any():
-            for out, (index, sky) in zip(outs, skies):
-                if sky.grid is None:
-                    out[off, c0:c1] = predict_rows(
-                        _directions_jones(jones, index), tidx[off], p[off], q[off], uvw[off],
-                        sky.lmn1, freq[c0:c1], sky.iquv[:, c0:c1], jones_left=left,
-                        dtype=dtype)
-                    continue
-                rows_off = np.flatnonzero(off)
-                out[rows_off, c0:c1] = 0
-                for t0, t1, part, sky_jones, sky_left in _pixel_blocks(
-                        sky, beam_model, fmeta, times, freq[c0:c1], stations,
-                        centre_correction, dtype):
-                    sel = rows_off[(tidx[rows_off] >= t0) & (tidx[rows_off] < t1)]
-                    out[sel, c0:c1] += predict_rows(
-                        _directions_jones(sky_jones, np.arange(part.ndir)), tidx[sel] - t0,
-                        p[sel], q[sel], uvw[sel], part.lmn1, freq[c0:c1],
-                        part.iquv[:, c0:c1], jones_left=sky_left, dtype=dtype)
+            _per_baseline(outs, skies, views, jones, left, np.flatnonzero(off),
+                          (tidx, p, q, uvw), slice(c0, c1), beam_model, fmeta, times, freq,
+                          stations, centre_correction, dtype)
             add_time(timings, "per_baseline", tick)
         del jones
     return outs, int(off.sum())
+
+
+def _per_baseline(outs: list, skies: list, views: list, jones, left, rows_off: np.ndarray,
+                  meta: tuple, channels: slice, beam_model, fmeta, times, freq, stations,
+                  centre_correction: bool, dtype) -> None:
+    """Fill the rows ``rows_off`` (not antenna-based) of every sky's ``outs`` on
+    ``channels``, each from its own UVW (``meta``: tidx, p, q, uvw of all rows): the union
+    skies with the chunk's beam ``jones`` and correction ``left``, the others (degridded,
+    all-sky with their ``views``) block by block with their own beam."""
+    tidx, p, q, uvw = (m[rows_off] for m in meta)
+    for out, (index, sky), view in zip(outs, skies, views):
+        if not sky.own:
+            out[rows_off, channels] = predict_rows(
+                _directions_jones(jones, index), tidx, p, q, uvw, sky.lmn1, freq[channels],
+                sky.iquv[:, channels], jones_left=left, dtype=dtype)
+            continue
+        out[rows_off, channels] = 0
+        for t0, t1, part, sky_jones, sky_left in _own_blocks(
+                sky, beam_model, fmeta, times, freq[channels], stations, centre_correction,
+                dtype, view):
+            sel = np.flatnonzero((tidx >= t0) & (tidx < t1))
+            out[rows_off[sel], channels] += predict_rows(
+                _directions_jones(sky_jones, np.arange(part.ndir)), tidx[sel] - t0, p[sel],
+                q[sel], uvw[sel], part.lmn1, freq[channels], part.iquv[:, channels],
+                jones_left=sky_left, dtype=dtype)
 
 
 def _geometry(grid, beam_model, times, freq, stations, centre_correction) -> tuple:
@@ -216,13 +234,14 @@ def _pixel_sky(sky, geometry, near, beam_model, fmeta, times: np.ndarray,
 
 
 def _pixel_direct(sky, beam_model, fmeta, times, channels, freq, stations, xyz, rows,
-                  centre_correction, dtype) -> np.ndarray:
-    """:func:`_pixel_sky`'s direct sum over every pixel of ``rows`` (tidx, p, q)."""
+                  centre_correction, dtype, view=None) -> np.ndarray:
+    """:func:`_pixel_sky`'s direct sum over every pixel of ``rows`` (tidx, p, q); with
+    ``view`` (:func:`_visible`), an all-sky sky's sum over the pixels above its horizon."""
     tidx, p, q = rows
     out = np.zeros((tidx.size, freq[channels].size, 4), dtype=dtype)
-    for t0, t1, part, jones, left in _pixel_blocks(sky, beam_model, fmeta, times,
-                                                   freq[channels], stations,
-                                                   centre_correction, dtype):
+    for t0, t1, part, jones, left in _own_blocks(sky, beam_model, fmeta, times,
+                                                 freq[channels], stations,
+                                                 centre_correction, dtype, view):
         grams = kernels.predict_grams(jones, xyz[t0:t1], part.lmn1, freq[channels],
                                       [(np.arange(part.ndir), part.w[:, channels],
                                         part.sign[:, channels])], dtype=dtype)
@@ -261,6 +280,43 @@ def _pixel_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
             t1 = min(times.size, t0 + block)
             yield (t0, t1, part, *_beam(beam_model, part, fmeta, times[t0:t1], freq,
                                         stations, centre_correction, dtype))
+
+
+#: a block of an all-sky sky keeps at least this many directions per beam call: it has at
+#: most direct_block(nstation, nchan) / HORIZON_MIN_DIRECTIONS times
+HORIZON_MIN_DIRECTIONS = 256
+
+
+def _visible(sky, times: np.ndarray, stations: np.ndarray, freq: np.ndarray):
+    """:func:`msleak.predict.horizon.visible_blocks` of an all-sky sky for a chunk (None for
+    other skies)."""
+    if sky.horizon is None:
+        return None
+    most = direct_block(stations.size, freq.size) // HORIZON_MIN_DIRECTIONS
+    return visible_blocks(sky.horizon, times, sky.ra, sky.dec, max_times=max(1, most))
+
+
+def _own_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
+                stations: np.ndarray, centre_correction: bool, dtype, view=None) -> Iterator:
+    """:func:`_pixel_blocks`, or for an all-sky sky with its ``view`` (:func:`_visible`):
+    per block of times, the directions above the horizon at some time of the block, in
+    blocks within :data:`PIXEL_BEAM_BYTES`, their beam zero at the times they are below."""
+    if view is None:
+        yield from _pixel_blocks(sky, beam_model, fmeta, times, freq, stations,
+                                 centre_correction, dtype)
+        return
+    for t0, t1, index, mask in view:
+        size = direct_block(stations.size, freq.size * (t1 - t0))
+        for i in range(0, index.size, size):
+            rows = index[i:i + size]
+            part = replace(sky, ra=sky.ra[rows], dec=sky.dec[rows], lmn1=sky.lmn1[rows],
+                           iquv=sky.iquv[rows], w=sky.w[rows], sign=sky.sign[rows],
+                           horizon=None)
+            jones, left = _beam(beam_model, part, fmeta, times[t0:t1], freq, stations,
+                                centre_correction, dtype)
+            if mask is not None:
+                jones = mask_jones(jones, mask[:, i:i + size], stations.size, dtype)
+            yield t0, t1, part, jones, left
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

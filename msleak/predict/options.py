@@ -11,7 +11,11 @@ from typing import Literal
 
 from msleak.errors import InputError
 
-__all__ = ["METHODS", "Method", "DegridOptions"]
+__all__ = ["METHODS", "Method", "DegridOptions", "MIN_ELEVATION_DEG", "check_min_elevation",
+           "check_extent"]
+
+#: lowest elevation (deg) at which a pixel of an all-sky sky counts, by default
+MIN_ELEVATION_DEG = 0.0
 
 #: how pixel skies are predicted (:class:`DegridOptions`)
 METHODS = ("auto", "direct", "degrid")
@@ -66,3 +70,40 @@ class DegridOptions:
         """The options as run-state settings (None left out)."""
         return {k: v for k, v in (("method", self.method), ("epsilon", self.epsilon),
                                   ("nsub", self.nsub)) if v is not None}
+
+
+def check_min_elevation(value) -> float:
+    """``min_elevation`` (deg) checked: a number in [-90, 90).
+
+    Raises
+    ------
+    InputError
+        Not a number in that range.
+    """
+    try:
+        degrees = float(value)
+    except (TypeError, ValueError):
+        degrees = float("nan")
+    if not -90.0 <= degrees < 90.0:
+        raise InputError(f"min_elevation must be in [-90, 90) deg, got {value}",
+                         param="min_elevation")
+    return degrees
+
+
+def check_extent(value) -> float | None:
+    """``extent`` (deg, None: the whole sky) checked: a number in (0, 180].
+
+    Raises
+    ------
+    InputError
+        Not a number in that range.
+    """
+    if value is None:
+        return None
+    try:
+        degrees = float(value)
+    except (TypeError, ValueError):
+        degrees = float("nan")
+    if not 0.0 < degrees <= 180.0:
+        raise InputError(f"extent must be in (0, 180] deg, got {value}", param="extent")
+    return degrees

@@ -30,7 +30,8 @@ from msleak.io.ms import append_history, check_ms, open_table, read_antennas
 from msleak.io.products import call_record
 from msleak.parallel import open_runner
 from msleak.parallel.runner import WorkerLost, parse_memory
-from msleak.predict.options import DegridOptions, Method
+from msleak.predict.options import (MIN_ELEVATION_DEG, DegridOptions, Method,
+                                    check_min_elevation)
 from msleak.verbs import predict_chunks as chunks
 from msleak.verbs import predict_run as runstate
 from msleak.verbs.noise import add_noise, station_sefd
@@ -49,31 +50,33 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
             column: str | None | Sequence[str] = "MODEL_DATA",
             fov: float | None | Sequence[float | None] = None, beam: str = "everybeam",
             diameter: float | None = None, element_model: str | None = None,
-            beam_file: str | os.PathLike | None = None,
+            beam_file: str | os.PathLike | None = None, min_elevation: float = MIN_ELEVATION_DEG,
             ionosphere: str | os.PathLike | None = None, beam_errors: str | None = None,
             centre_correction: bool = True, interpolate_frequency: bool = False,
-            double: bool = False, double_column: bool = False,
+            double: bool = False, double_column: bool = False, flat_spectrum: bool = False,
             field: int | str | Sequence[int | str] | None = None,
             spw: int | Sequence[int] | None = None, memory_limit: str | float = "2GB",
             overwrite_data: bool = False, restart: bool = False, scheduler="threads",
             workers: int | None = None, progress: bool = False,
             method: Method = _DEGRID.method, epsilon: float = _DEGRID.epsilon,
-            nsub: int | None = _DEGRID.nsub, noise: float | dict[str, float] | None = None,
-            noise_seed: int = 0):
+            nsub: int | None = _DEGRID.nsub,
+            extent: float | None | Sequence[float | None] = None,
+            noise: float | dict[str, float] | None = None, noise_seed: int = 0):
     """Predict beam-corrupted visibilities of one or several skies into columns of MSs.
 
     Parameters
     ----------
     ms : path or sequence of paths
         Measurement Set(s), written in place (e.g. one per subband; each gets every sky).
-    sky : path, sky Dataset, SkyCube, PointSources, or a sequence of them
-        A FITS cube or makesourcedb file, or in memory (:func:`msleak.make_sky`'s Dataset);
-        several skies are predicted in one pass, each into its own column (docs/predict.md).
+    sky : path, sky Dataset, SkyCube, PointSources, HealpixSky, or a sequence of them
+        A FITS cube, makesourcedb file, HEALPix map or SkyH5 file, or in memory; several
+        skies are predicted in one pass, each into its own column (docs/predict.md).
     column : str, sequence of str, or None
         Target column of each sky (all different), created like DATA if missing (DATA needs
         ``overwrite_data``); None: the MS is opened read-only, the visibilities returned.
-    fov : float or sequence of float, optional
-        Keep the central ``fov`` x ``fov`` degrees of the sky; one value or one per sky.
+    fov, extent : float or sequence of float, optional
+        Keep the central ``fov`` x ``fov`` deg, and the pixels (HEALPix) or sources
+        (makesourcedb) within ``extent`` deg of the phase centre; once or once per sky.
     beam, diameter, element_model, beam_file, ionosphere, beam_errors
         The station beam ('everybeam', 'everybeam-direct', 'uvbeam', 'hyperbeam',
         'dipole' or 'none') and its options, the ionospheric Faraday rotation in front of it
@@ -81,21 +84,22 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     noise, noise_seed
         Thermal noise added to each written column once predicted: the SEFD (Jy) of every
         station or per station name, and the seed (:func:`msleak.noise`).
-    centre_correction, interpolate_frequency : bool
+    centre_correction, interpolate_frequency, double, double_column : bool
         Remove the beam at the phase centre, V' = J_p(s0)^-1 V J_q(s0)^-H; interpolate the
-        sky linearly to the MS channels instead of requiring a match.
-    double, double_column : bool
-        complex128 arithmetic (default complex64; phases always float64); also create the
-        columns as complex128, which msleak grid reads and DP3 and WSClean cannot (not DATA).
+        sky linearly to the MS channels instead of requiring a match; complex128 arithmetic
+        (default complex64); also complex128 columns (msleak grid reads them, DP3 and
+        WSClean cannot; not DATA).
     field, spw : id or name, or a sequence of them, optional
         FIELD ids or names, SPECTRAL_WINDOW ids; default all present.
-    memory_limit, scheduler, workers, progress
+    memory_limit, scheduler, workers, progress, overwrite_data, restart
         Working-set budget ("2GB" or bytes) shared by the chunks in flight, where they run
-        (docs/parallel.md), how many at once (default all cores), a progress bar on stderr.
-    overwrite_data, restart : bool
-        Allow ``column="DATA"``; start over instead of resuming an interrupted run.
+        (docs/parallel.md), how many at once (default all cores), a progress bar on stderr;
+        allow ``column="DATA"``; start over instead of resuming an interrupted run.
     method, epsilon, nsub
         How pixel skies are predicted (:class:`msleak.predict.options.DegridOptions`).
+    min_elevation, flat_spectrum
+        HEALPix skies: pixels below ``min_elevation`` deg (from the array centre) add
+        nothing at that time; a map of one frequency holds at every channel.
 
     Returns
     -------
@@ -107,10 +111,11 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
     t_start = _time.perf_counter()
     single_ms = isinstance(ms, (str, os.PathLike))
     paths = _check_paths([ms] if single_ms else list(ms))
-    targets = make_targets(sky, column, fov, overwrite_data)
+    min_elevation = check_min_elevation(min_elevation)
+    targets = make_targets(sky, column, fov, overwrite_data, extent, flat_spectrum)
     budget = parse_memory(memory_limit)
     dtype = np.dtype(np.complex128 if double or double_column else np.complex64)
-    runs = _make_runs(paths, targets, given, dtype)
+    runs = _make_runs(paths, targets, {**given, "min_elevation": min_elevation}, dtype)
     args = dict(dtype=dtype, centre_correction=centre_correction, beam=beam,
                 progress=progress, t_start=t_start)
     one_sky = not isinstance(sky, (list, tuple))
@@ -118,8 +123,7 @@ def predict(ms: PathLike | Sequence[PathLike], sky, *,
         arrays = _predict_in_memory(runs[0], scheduler, workers, budget, **args)
         return arrays[0] if one_sky else arrays
     _run(runs, scheduler, workers, budget, restart=restart, **args)
-    if noise is not None:
-        _add_noise(runs, noise, noise_seed)
+    _add_noise(runs, noise, noise_seed)
     results = _append_history(runs, call_record(predict, given))
     return results[0] if single_ms and one_sky else results
 
@@ -136,7 +140,8 @@ def _make_runs(paths: list[Path], targets: list, given: dict, dtype: np.dtype) -
         p, targets, beam=g["beam"], centre_correction=g["centre_correction"], dtype=dtype,
         interpolate_frequency=g["interpolate_frequency"], field_sel=g["field"],
         spw_sel=g["spw"], beam_options=options, double_column=g["double_column"],
-        degrid=degrid)) for p in paths]
+        min_elevation=g["min_elevation"], degrid=degrid,
+        flat_spectrum=g["flat_spectrum"])) for p in paths]
 
 
 def _check_options(paths: list[Path], targets: list, double_column: bool, noise) -> None:
@@ -172,8 +177,9 @@ def _check_noise(paths: list[Path], targets: list, noise) -> None:
 
 def _add_noise(runs: list, sefd, seed: int) -> None:
     """Add the thermal noise to each column just predicted (from its first row: the column
-    was rewritten) or left as it was (continuing a noise run that was interrupted)."""
-    for run in runs:
+    was rewritten) or left as it was (continuing a noise run that was interrupted); nothing
+    without ``sefd``."""
+    for run in runs if sefd is not None else ():
         for target, result in zip(run.plan.targets, run.results):
             added = add_noise(run.plan.ms, target.column, sefd, seed, target.column,
                               start_over=not result.skipped)

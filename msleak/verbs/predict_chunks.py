@@ -172,17 +172,19 @@ def _chunk_size(active: list, comp: SkySet, ntime: int, nchan: int, nstation: in
                 has_beam: bool, tasks: int = 1) -> tuple[int, int]:
     """:func:`plan_chunks` for a group: the skies, the rows' metadata
     and the kernel's scratch memory are the fixed part."""
-    direct = [comp.skies[j] for j in active if comp.skies[j].grid is None]
+    direct = [comp.skies[j] for j in active if not comp.skies[j].own]
     pixel = [comp.skies[j] for j in active if comp.skies[j].grid is not None]
+    all_sky = [comp.skies[j] for j in active if comp.skies[j].horizon is not None]
     # a degridded chunk takes complex128 Jones at nsub^2 directions (one copy, built per
     # time), the sky's w-layer grids (DEGRID_PIXEL_BYTES per pixel) and transforms
     # DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's
-    # fallback; rows whose UVW are not antenna-based) takes the beam at a block of its
-    # pixels for a few times at once within PIXEL_BEAM_BYTES (_pixel_blocks), and the
-    # direct kernel's scratch for that block
+    # fallback; rows whose UVW are not antenna-based) and an all-sky sky take the beam at
+    # a block of their pixels for a few times at once within PIXEL_BEAM_BYTES
+    # (_pixel_blocks, _own_blocks), and the direct kernel's scratch for that block
     nsub = max([s.grid.nsub or PLAN_NSUB for s in pixel], default=0)
     widest = max([min(s.ndir, direct_block(nstation, nchan)) for s in pixel
-                  if s.grid.auto], default=0)
+                  if s.grid.auto] + [min(s.ndir, direct_block(nstation, nchan))
+                                     for s in all_sky], default=0)
     fixed = (comp.nbytes + nrows * 28 + 128 * DEGRID_BATCH * nsub ** 2
              + DEGRID_PIXEL_BYTES * max([s.ndir for s in pixel], default=0)
              + (PIXEL_BEAM_BYTES if widest else 0)

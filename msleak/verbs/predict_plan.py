@@ -20,6 +20,7 @@ import numpy as np
 import xarray as xr
 
 from msleak import __version__
+from msleak.adapters.healpix import is_hdf5, is_healpix_fits, read_healpix
 from msleak.adapters.sky_fits import cube_from_dataset, read_cube
 from msleak.adapters.skymodel import read_skymodel
 from msleak.conventions import correlation_layout
@@ -37,8 +38,10 @@ from msleak.io.ms import (
     read_used_antennas,
 )
 from msleak.predict.components import SkySet, sky_components, sky_set
-from msleak.predict.options import DegridOptions
+from msleak.predict.horizon import Horizon
+from msleak.predict.options import MIN_ELEVATION_DEG, DegridOptions, check_extent
 from msleak.sky.cube import SkyCube
+from msleak.sky.healpix import HealpixSky
 from msleak.sky.sources import PointSources
 from msleak.verbs.predict_chunks import register_beam
 
@@ -75,16 +78,18 @@ class PredictResult:
 
 @dataclass(frozen=True)
 class Target:
-    """One sky of a run, read once (a :class:`SkyCube` or :class:`PointSources`), and the
-    column it is predicted into (None: returned in memory); ``path`` the file it was read
-    from (None: given in memory)."""
+    """One sky of a run, read once (a :class:`SkyCube`, :class:`PointSources` or
+    :class:`HealpixSky`), and the column it is predicted into (None: returned in memory);
+    ``path`` the file it was read from (None: given in memory); ``extent_deg`` keeps its
+    sources within that angle of the phase centre."""
 
-    sky: SkyCube | PointSources
+    sky: SkyCube | PointSources | HealpixSky
     column: str | None
     fov_deg: float | None
     sha256: str
     path: Path | None = None
     given: str = ""
+    extent_deg: float | None = None
 
     @property
     def label(self) -> str:
@@ -113,8 +118,10 @@ class Plan:
     double_column: bool = False
 
 
-def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
-    """The run's skies with their columns and fields of view, matched in order and checked.
+def make_targets(sky, column, fov, overwrite_data: bool, extent=None,
+                 flat_spectrum: bool = False) -> list[Target]:
+    """The run's skies with their columns, fields of view and extents, matched in order
+    and checked; ``flat_spectrum``: a HEALPix map of one frequency holds at every channel.
 
     ``column`` None (or a list of None) means the visibilities are returned, not written.
     """
@@ -122,6 +129,7 @@ def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
     columns = list(column) if isinstance(column, (list, tuple)) else [column] * (
         len(skies) if column is None else 1)
     fovs = list(fov) if np.ndim(fov) == 1 else [fov]
+    extents = _per_sky(extent, len(skies), "extent")
     if not skies:
         raise InputError("no sky given; give one as `sky`", param="sky")
     if len(columns) != len(skies):
@@ -148,10 +156,23 @@ def make_targets(sky, column, fov, overwrite_data: bool) -> list[Target]:
         if value is not None and not (0 < value <= 180):
             raise InputError(f"fov must be in (0, 180] deg, got {value}", param="fov")
     read: dict = {}
-    return [Target(sky=_read_sky(s, read), column=c, fov_deg=None if f is None else float(f),
-                   sha256=_digest(s), path=s if isinstance(s, Path) else None,
-                   given=type(s).__name__)
-            for s, c, f in zip(_sky_inputs(skies), columns, fovs)]
+    return [Target(sky=_read_sky(s, read, flat_spectrum), column=c,
+                   fov_deg=None if f is None else float(f), sha256=_digest(s),
+                   path=s if isinstance(s, Path) else None, given=type(s).__name__,
+                   extent_deg=e)
+            for s, c, f, e in zip(_sky_inputs(skies), columns, fovs, extents)]
+
+
+def _per_sky(value, nsky: int, name: str) -> list:
+    """``value`` (one, or one per sky) as one checked extent per sky."""
+    values = list(value) if np.ndim(value) == 1 else [value]
+    if len(values) == 1:
+        values = values * nsky
+    if len(values) != nsky:
+        raise InputError(f"`{name}` is given {len(values)} times for {nsky} `sky`; give it "
+                         "once (for every sky) or once per `sky` (matched in order)",
+                         param=(name, "sky"))
+    return [check_extent(v) for v in values]
 
 
 def _sky_inputs(skies: list) -> list:
@@ -163,26 +184,39 @@ def _sky_inputs(skies: list) -> list:
             if not sky.exists():
                 raise InputError(f"sky file {sky} does not exist")
             if sky.is_dir():
-                raise InputError(f"sky {sky} is a directory, not a FITS cube or makesourcedb "
-                                 "file")
+                raise InputError(f"sky {sky} is a directory, not a FITS cube, HEALPix map, "
+                                 "SkyH5 or makesourcedb file")
         out.append(sky)
     return out
 
 
-def _read_sky(sky, read: dict) -> SkyCube | PointSources:
+def _read_sky(sky, read: dict, flat_spectrum: bool = False
+              ) -> SkyCube | PointSources | HealpixSky:
     """A sky file read (once per path, cached in ``read``), a sky Dataset converted; a
-    SkyCube or PointSources as it is."""
+    SkyCube, PointSources or HealpixSky as it is. Files are told apart by content: HDF5
+    is SkyH5, FITS with a HEALPix header a HEALPix map, other FITS a cube, text
+    makesourcedb (docs/sky.md)."""
     if isinstance(sky, Path):
         key = sky.resolve()
         if key not in read:
-            read[key] = read_cube(sky) if is_fits(sky) else read_skymodel(sky)
+            read[key] = _read_file(sky, flat_spectrum)
         return read[key]
     if isinstance(sky, xr.Dataset):
         return cube_from_dataset(sky)
-    if isinstance(sky, (SkyCube, PointSources)):
+    if isinstance(sky, (SkyCube, PointSources, HealpixSky)):
         return sky
-    raise InputError(f"sky must be a path, a sky Dataset (msleak.make_sky), a SkyCube or "
-                     f"PointSources, not {type(sky).__name__}")
+    raise InputError(f"sky must be a path, a sky Dataset (msleak.make_sky), a SkyCube, "
+                     f"PointSources or HealpixSky, not {type(sky).__name__}")
+
+
+def _read_file(path: Path, flat_spectrum: bool):
+    """The sky in the file ``path`` (see :func:`_read_sky`)."""
+    if is_hdf5(path) or is_healpix_fits(path):
+        return read_healpix(path, flat_spectrum=flat_spectrum)
+    if path.suffix.lower() in (".skyh5", ".h5", ".hdf5"):
+        raise InputError(f"{path} is not an HDF5 file, so not SkyH5; give a SkyH5 file "
+                         "pyradiosky wrote, a FITS cube or map, or a makesourcedb file")
+    return read_cube(path) if is_fits(path) else read_skymodel(path)
 
 
 def _digest(sky) -> str:
@@ -249,10 +283,12 @@ def _select_groups(ms: Path, fields_meta, spw_meta, ddesc, field_sel, spw_sel
 
 def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_frequency,
               dtype, field_sel, spw_sel, beam_options: dict, double_column: bool = False,
-              degrid: DegridOptions = DegridOptions()) -> Plan:
+              degrid: DegridOptions = DegridOptions(),
+              min_elevation: float = MIN_ELEVATION_DEG, flat_spectrum: bool = False) -> Plan:
     """Read the metadata of ``ms``, select its groups and prepare the skies (no writes);
     ``double_column``: the columns are, or are created, complex128; ``degrid``: how pixel
-    skies are predicted."""
+    skies are predicted; ``min_elevation`` (deg): the horizon of HEALPix skies, seen from
+    the array centre; ``flat_spectrum`` is recorded (the targets were read with it)."""
     fields_meta, spw_meta = read_fields(ms), read_spectral_windows(ms)
     ddesc, corr_types = read_data_descriptions(ms), read_corr_types(ms)
     _check_new_columns(ms, [t.column for t in targets if t.column is not None], double_column)
@@ -263,11 +299,16 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
                     "the full coherency and writes those two (the cross hands are not "
                     "stored)", ms, d, ",".join(feeds[d].names))
     _check_rows(ms, groups)
-    site = (_array_site(ms, groups) if beam != "none" and degrid.method != "direct"
-            else (None, 0.0))
+    all_sky = any(isinstance(t.sky, HealpixSky) for t in targets)
+    probe = beam != "none" and degrid.method != "direct"     # the degridder's zenith probe
+    array = _array_site(ms, groups) if all_sky or probe else (None, 0.0)
+    site = array if probe else (None, 0.0)
+    horizon = (Horizon(float(np.radians(min_elevation)), tuple(float(x) for x in array[0]))
+               if all_sky else None)
     skies = {(f, d): _group_skies(targets, fields_meta[f], spw_meta[ddesc[d][0]].freq,
                                   interpolate_frequency, degrid, site,
-                                  _field_text(ms, fields_meta, f)) for f, d in groups}
+                                  _field_text(ms, fields_meta, f), horizon)
+             for f, d in groups}
     token = uuid.uuid4().hex
     options = register_beam(token, beam, ms, groups, beam_options)
     common = {"beam": beam, "centre_correction": bool(centre_correction and beam != "none"),
@@ -275,10 +316,12 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
               "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
               **degrid.settings(),
               "beam_options": dict(sorted(beam_options.items())),
+              "min_elevation_deg": float(min_elevation), "flat_spectrum": bool(flat_spectrum),
               "msleak_version": __version__}
     settings = [{"sky": str(t.path.resolve()) if t.path is not None else t.label,
                  "sky_sha256": t.sha256,
-                 "fov_deg": -1.0 if t.fov_deg is None else t.fov_deg, **common}
+                 "fov_deg": -1.0 if t.fov_deg is None else t.fov_deg,
+                 "extent_deg": -1.0 if t.extent_deg is None else t.extent_deg, **common}
                 for t in targets]
     return Plan(ms=ms, fields_meta=fields_meta, spw_meta=spw_meta, ddesc=ddesc,
                 groups=groups, feeds=feeds, total_rows=total_rows, targets=targets,
@@ -311,9 +354,11 @@ def _array_site(ms: Path, groups: list) -> tuple[np.ndarray, float]:
 
 def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool,
                  degrid: DegridOptions,
-                 site: tuple, phase_centre_of: str = "") -> SkySet:
-    """The skies of one field and spectral window (each (sky, fov) read once);
-    ``phase_centre_of`` names the field in the re-centring warning."""
+                 site: tuple, phase_centre_of: str = "", horizon: Horizon | None = None
+                 ) -> SkySet:
+    """The skies of one field and spectral window (each (sky, fov, extent) read once);
+    ``phase_centre_of`` names the field in the re-centring warning; ``horizon`` culls
+    HEALPix skies."""
     comps: dict = {}
     for t in targets:
         key = _sky_key(t)
@@ -321,12 +366,13 @@ def _group_skies(targets: list, fmeta, freq: np.ndarray, interpolate: bool,
             comps[key] = sky_components(t.sky, freq, fmeta.ra, fmeta.dec, label=t.label,
                                         fov_deg=t.fov_deg, interpolate=interpolate,
                                         degrid=degrid, site=site[0], site_spread=site[1],
-                                        phase_centre_of=phase_centre_of)
+                                        phase_centre_of=phase_centre_of,
+                                        extent_deg=t.extent_deg, horizon=horizon)
     return sky_set([comps[_sky_key(t)] for t in targets])
 
 
 def _sky_key(target: Target) -> tuple:
-    return (id(target.sky), target.fov_deg)
+    return (id(target.sky), target.fov_deg, target.extent_deg)
 
 
 def _check_new_columns(ms: Path, columns: list[str], double: bool) -> None:

@@ -16,7 +16,7 @@ CREATE = {"simulate": "out", "sky": "out", "paper": "outdir", "forecast": "outdi
 TRANSFORM = {"beam", "grid", "transform", "ps", "leakage"}
 #: one-way switches that change what is computed (not --x/--no-x pairs)
 ONE_WAY = {"quick", "double", "double_column", "restart", "overwrite", "overwrite_data",
-           "invariant", "interpolate_frequency", "log_bins", "little_h", "add"}
+           "invariant", "interpolate_frequency", "flat_spectrum", "log_bins", "little_h", "add"}
 #: metavars of single numbers: a unit, or N (count) / X (dimensionless) / FRACTION
 UNIT_METAVARS = {"HZ", "DEG", "SEC", "HOURS", "M", "LAMBDA", "SR", "PC", "UG", "CM-3", "K",
                  "KM/S/MPC", "MPC-1", "N", "X", "FRACTION", "SIZE", "JY"}
