@@ -420,6 +420,7 @@ def beyond_ps(cfg: ForecastConfig, tel: str, inner: float = 15.0):
     near = open_product(tdir / f"grid_{extent_label(inner)}_s{seed}.h5", "uvcube")
     diff = outer.copy()
     diff["vis"] = outer["vis"] - near["vis"]
+    diff.attrs["column"] = f"{outer.attrs.get('column')} - {near.attrs.get('column')}"
     return power_spectrum(transform(diff))
 
 
