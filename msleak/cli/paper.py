@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import study_double_option, study_invoker, study_workers_option
+from msleak.cli._common import FloatList, study_double_option, study_invoker, study_workers_option
 from msleak.study.config import (OBSERVED_UV_RANGE, RESOLUTIONS, SKY_FOV_DEG, StudyConfig,
                                   nyquist_npix)
 from msleak.study.pipeline import run_study
@@ -79,6 +79,12 @@ def _observed(ctx, param, values):
 @click.option("--noise", "noise_sefd", type=float, default=None, metavar="JY",
               help="Add budget runs with thermal noise of this SEFD (Jy), gridded in "
               "even/odd halves (msleak noise).")
+@click.option("--extents", type=FloatList(), default=None, metavar="DEG,DEG,...",
+              help="Also predict all-sky HEALPix skies of the same realisations within each "
+              "extent (deg from the phase centre, up to 180: every pixel above the horizon) "
+              "for every field, and tabulate and plot L_I against the extent (docs/paper.md).")
+@click.option("--nside", type=click.IntRange(1, None), default=None, metavar="N",
+              help="NSIDE of the all-sky skies of --extents, a power of 2 [64; --quick: 16].")
 @click.option("--instrument-seeds", type=click.IntRange(1, None), default=3,
               show_default=True, metavar="N",
               help="Realisations of each corruption in the budget (docs/paper.md).")
@@ -90,8 +96,8 @@ def _observed(ctx, param, values):
               "(without it an existing OUTDIR resumes).")
 @click.pass_context
 def paper(ctx, outdir, quick, resolution, seed, seeds, fields, beam, observed, stations,
-          duration_h, interval_s, nchan, ionosphere, beam_errors, noise_sefd,
-          instrument_seeds, double, workers, overwrite):
+          duration_h, interval_s, nchan, ionosphere, beam_errors, noise_sefd, extents,
+          nside, instrument_seeds, double, workers, overwrite):
     """Run the whole study into OUTDIR: simulate both fields, generate the sky, predict it
     through the LOFAR beam for 15, 9 and 4 deg fields of view, power spectra, leakage
     statistics, every figure, and OUTDIR/report.md with the commands used.
@@ -106,13 +112,15 @@ def paper(ctx, outdir, quick, resolution, seed, seeds, fields, beam, observed, s
       msleak paper study/ --observed ncp=ncp_Q.fits,ncp_U.fits
       msleak paper study/ --ionosphere random --beam-errors failed=0.05,rotation=1 \\
           --noise 2500
+      msleak paper study/ --extents 4,9,15,30,60,90
     """
     cfg = StudyConfig(outdir=Path(outdir), quick=quick, seed=seed, seeds=seeds,
                       fields=tuple(fields) or ("ncp", "3c196"), beam=beam,
                       observed=observed, stations=stations, duration_h=duration_h,
                       interval_s=interval_s, nchan=nchan, double=double,
                       resolution=resolution, ionosphere=ionosphere, beam_errors=beam_errors,
-                      noise_sefd=noise_sefd, instrument_seeds=instrument_seeds)
+                      noise_sefd=noise_sefd, instrument_seeds=instrument_seeds,
+                      extents=tuple(extents or ()), nside=nside)
     with study_invoker(ctx, "paper", workers) as (invoke, workers):
         report = run_study(cfg, invoke, overwrite=overwrite, workers=workers)
     click.echo(f"report: {report}")

@@ -39,14 +39,14 @@ def plot_forecast(rows: Sequence[dict], path: str | os.PathLike, pdf: bool = Tru
 
 
 def plot_extents(rows: Sequence[dict], path: str | os.PathLike, pdf: bool = True) -> Path:
-    """L_I against the sky's extent, one line per telescope: the median over the voxels
+    """L_I against the sky's extent, one line per array and field (``name``): the median over the voxels
     (left) and the EoR-window L_I (right), error bars the realisation scatter."""
     fig, axes = new_figure(1, 2, figsize=(9.0, 3.6), sharex=True)
-    telescopes = list(dict.fromkeys(r["telescope"] for r in rows))
+    names = list(dict.fromkeys(r["name"] for r in rows))
     for key, ax, title in (("median", axes[0], "median over voxels"),
                            ("window", axes[1], "EoR window (above the horizon wedge)")):
-        for tel in telescopes:
-            mine = [r for r in rows if r["telescope"] == tel]
+        for name in names:
+            mine = [r for r in rows if r["name"] == name]
             x = np.array([r["extent_deg"] for r in mine], dtype=float)
             y = np.array([r[key] for r in mine], dtype=float)
             err = np.array([r[f"{key}_scatter"] for r in mine], dtype=float)

@@ -9,8 +9,8 @@ from pathlib import Path
 from msleak.adapters.spinifex_rm import is_model_spec, parse_model_spec
 from msleak.errors import InputError
 
-__all__ = ["StudyConfig", "Instrument", "FIELDS_OF_VIEW", "RESOLUTIONS", "PAPER_UV_RANGE",
-           "OBSERVED_UV_RANGE", "SKY_FOV_DEG", "nyquist_npix"]
+__all__ = ["StudyConfig", "Instrument", "check_extents", "FIELDS_OF_VIEW", "RESOLUTIONS",
+           "PAPER_UV_RANGE", "OBSERVED_UV_RANGE", "SKY_FOV_DEG", "nyquist_npix"]
 
 #: (label, crop in pixels of the 50-pixel 15-deg cube): the paper's 15, 9 and 4 deg fields
 #: of view are 50, 28 and 16 pixels (0.3 deg pixels: 15, 8.4 and 4.8 deg a side).
@@ -40,6 +40,19 @@ def nyquist_npix(fov_deg: float, uv_max: float) -> int:
     """Pixels a side of a cube ``fov_deg`` wide whose pixels resolve baselines up to
     ``uv_max`` wavelengths: pixel <= 1 / (2 uv_max) rad, so n = ceil(2 uv_max fov_rad)."""
     return math.ceil(2.0 * uv_max * math.radians(fov_deg) - 1e-9)
+
+
+def check_extents(extents, nside: int | None, quick: bool) -> tuple[tuple, int]:
+    """The extents sorted and unique, and NSIDE (default 64; 16 ``quick``), or
+    :class:`InputError`."""
+    extents = tuple(sorted({float(e) for e in extents}))
+    if any(not 0 < e <= 180 for e in extents):
+        raise InputError(f"extents must lie in (0, 180] deg, got "
+                         f"{','.join(f'{e:g}' for e in extents)}", param="extents")
+    nside = (16 if quick else 64) if nside is None else int(nside)
+    if nside < 1 or nside & (nside - 1):
+        raise InputError(f"nside must be a power of 2, got {nside}", param="nside")
+    return extents, nside
 
 
 @dataclass(frozen=True)
@@ -133,9 +146,14 @@ class StudyConfig:
     beam_errors: str | None = None
     noise_sefd: float | None = None
     instrument_seeds: int = 3
+    #: L_I against the sky's extent: all-sky HEALPix skies of ``nside`` predicted within
+    #: each extent (deg from the phase centre) for every field; () for none
+    extents: tuple = ()
+    nside: int | None = None
 
     def __post_init__(self):
         self._check_instrument()
+        self.extents, self.nside = check_extents(self.extents, self.nside, self.quick)
         if self.resolution not in RESOLUTIONS:
             raise InputError(f"unknown resolution {self.resolution!r}: "
                              f"{' or '.join(RESOLUTIONS)}")
@@ -175,6 +193,11 @@ class StudyConfig:
         if self.nchan is not None:
             args += ["--nchan", str(self.nchan)]
         return args
+
+    @property
+    def allsky_args(self) -> list:
+        """Band options of the all-sky skies (the MSs' channels)."""
+        return [] if self.nchan is None else ["--nchan", str(self.nchan)]
 
     @property
     def realisations(self) -> list[int]:

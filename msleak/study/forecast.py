@@ -21,9 +21,9 @@ from msleak.constants import SPEED_OF_LIGHT
 from msleak.errors import InputError
 from msleak.io.products import open_product
 from msleak.leakage.fraction import window_leakage
-from msleak.plot.forecast import plot_extents, plot_forecast
-from msleak.plot.ps import plot_ps2d
-from msleak.study.config import Instrument
+from msleak.plot.forecast import plot_forecast
+from msleak.study.config import Instrument, check_extents
+from msleak.study.extents import ExtentRun, allsky_step, extent_lines, extent_steps
 from msleak.study.pipeline import Budget, budget_steps
 from msleak.study.report import BUDGET_KINDS, detectable_text, spread_text, stats_rows
 from msleak.study.steps import Step, StepRunner, predict_precision
@@ -138,14 +138,7 @@ class ForecastConfig:
                              param="nchan")
 
     def _check_extents(self) -> None:
-        self.extents = tuple(sorted({float(e) for e in self.extents}))
-        if any(not 0 < e <= 180 for e in self.extents):
-            raise InputError(f"extents must lie in (0, 180] deg, got "
-                             f"{','.join(f'{e:g}' for e in self.extents)}", param="extents")
-        if self.nside is None:
-            self.nside = 16 if self.quick else 64
-        if self.nside < 1 or self.nside & (self.nside - 1):
-            raise InputError(f"nside must be a power of 2, got {self.nside}", param="nside")
+        self.extents, self.nside = check_extents(self.extents, self.nside, self.quick)
 
     def _check_noise(self) -> None:
         sefd = self.noise if isinstance(self.noise, dict) else \
@@ -231,62 +224,31 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
     return steps
 
 
-def extent_label(extent: float) -> str:
-    """File and column label of an extent (deg): ``e15``, ``e7p5``."""
-    return "e" + f"{extent:g}".replace(".", "p")
-
-
-def _allsky_steps(cfg: ForecastConfig, sky: Path) -> tuple[list[Step], dict]:
-    """One all-sky HEALPix sky per realisation and band: ``{(seed, freq_min): path}``."""
-    steps, skies = [], {}
-    for freq in sorted({SETUPS[t].freq_min(cfg.nchan) for t in cfg.telescopes}):
-        for seed in cfg.realisations:
-            path = sky / f"allsky_s{seed}_{freq / 1e6:g}MHz.skyh5"
-            skies[seed, freq] = path
-            steps.append(Step(f"allsky-s{seed}-{freq / 1e6:g}MHz",
-                              ["sky", path, "--healpix", cfg.nside, "--seed", seed,
-                               "--freq-min", freq, "--nchan", cfg.nchan, "--chan-width",
-                               _CHAN_WIDTH, "--overwrite"], outputs=[path]))
-    return steps, skies
-
-
-def _extent_steps(cfg: ForecastConfig, tel: str, skies: dict) -> list[Step]:
-    """The all-sky sky of every realisation predicted within each extent (one predict, one
-    grid), a PS per column and one leakage result (``leakage_extent``)."""
+def extent_run(cfg: ForecastConfig, tel: str) -> ExtentRun:
+    """The extent runs of ``tel``: its MS, beam, grid and the all-sky sky of its band."""
     setup = SETUPS[tel]
-    tdir = Path(cfg.outdir) / tel
-    ms = tdir / f"{tel}.ms"
+    freq = setup.freq_min(cfg.nchan)
     cell, uv_range = setup.uv_grid(cfg.nchan)
-    predict = ["predict", ms, "--beam", setup.beam, *predict_precision(cfg.double)]
-    grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
-            f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]
-    names = [(seed, extent_label(e), e) for seed in cfg.realisations for e in cfg.extents]
-    for seed, label, extent in names:
-        column = f"MODEL_{label.upper()}_S{seed}"
-        predict += ["--sky", skies[seed, setup.freq_min(cfg.nchan)], "--column", column,
-                    "--extent", f"{extent:g}"]
-        grid += ["--column", column, "-o", tdir / f"grid_{label}_s{seed}.h5"]
-    steps = [Step(f"predict-{tel}-extents", predict, after=[f"grid-{tel}"], outputs=[ms],
-                  inputs=sorted({skies[s, setup.freq_min(cfg.nchan)]
-                                 for s in cfg.realisations})),
-             Step(f"grid-{tel}-extents", grid, after=[f"predict-{tel}-extents"], reads=[ms],
-                  outputs=[tdir / f"grid_{label}_s{seed}.h5" for seed, label, _ in names])]
-    ps_files = []
-    for seed, label, _ in names:
-        grid_h5, delay, ps = (tdir / f"{x}_{label}_s{seed}.h5" for x in ("grid", "delay",
-                                                                        "ps"))
-        steps += [Step(f"transform-{tel}-{label}-s{seed}", ["transform", grid_h5, "-o",
-                                                            delay, "--overwrite"],
-                       inputs=[grid_h5], outputs=[delay]),
-                  Step(f"ps-{tel}-{label}-s{seed}", ["ps", delay, "-o", ps, "--overwrite"],
-                       inputs=[delay], outputs=[ps])]
-        ps_files.append(ps)
-    steps.append(Step(f"leakage-{tel}-extents", [
-        "leakage", *ps_files, "--labels", ",".join(label for _, label, _ in names),
-        "--realisations", ",".join(str(seed) for seed, _, _ in names), "--field-name",
-        setup.label, "-o", tdir / "leakage_extent", "--no-pdf", "--overwrite"],
-        inputs=ps_files, outputs=[tdir / "leakage_extent" / "stats.csv"]))
-    return steps
+    sky = Path(cfg.outdir) / "sky"
+    return ExtentRun(
+        name=tel, label=setup.label, ms=Path(cfg.outdir) / tel / f"{tel}.ms",
+        outdir=Path(cfg.outdir) / tel,
+        predict=["--beam", setup.beam, *predict_precision(cfg.double)],
+        grid=["--cell", f"{cell:.6g}", "--uv-range", f"{uv_range[0]:.6g},{uv_range[1]:.6g}"],
+        ps=[], skies={s: sky / f"allsky_s{s}_{freq / 1e6:g}MHz.skyh5"
+                      for s in cfg.realisations},
+        extents=cfg.extents, after=f"grid-{tel}", field_name=setup.label)
+
+
+def _allsky_steps(cfg: ForecastConfig) -> list[Step]:
+    """One all-sky HEALPix sky per realisation and band."""
+    steps = {}
+    for tel in cfg.telescopes:
+        freq = SETUPS[tel].freq_min(cfg.nchan)
+        for seed, path in extent_run(cfg, tel).skies.items():
+            steps[path] = allsky_step(path, cfg.nside, seed, [
+                "--freq-min", freq, "--nchan", cfg.nchan, "--chan-width", _CHAN_WIDTH])
+    return list(steps.values())
 
 
 def _budget_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
@@ -308,16 +270,14 @@ def _budget_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
 def forecast_steps(cfg: ForecastConfig) -> list[Step]:
     """Every step of the forecast, in order."""
     steps, cubes = _sky_steps(cfg, Path(cfg.outdir) / "sky")
-    skies = {}
     if cfg.extents:
-        more, skies = _allsky_steps(cfg, Path(cfg.outdir) / "sky")
-        steps += more
+        steps += _allsky_steps(cfg)
     for tel in cfg.telescopes:
         steps += _telescope_steps(cfg, tel, cubes)
     for tel in cfg.telescopes:
         steps += _budget_steps(cfg, tel, cubes)
         if cfg.extents:
-            steps += _extent_steps(cfg, tel, skies)
+            steps += extent_steps(extent_run(cfg, tel))
     return steps
 
 
@@ -370,7 +330,8 @@ def write_summary(cfg: ForecastConfig, rows: list[dict], log_: list[dict],
                      f"{r['pareto_median']:.3g} ± {r['pareto_scatter']:.2g} | "
                      f"{r['window']:.3g} ± {r['window_scatter']:.2g} |")
     lines += _budget_lines(cfg)
-    lines += _extent_lines(cfg, out)
+    if cfg.extents:
+        lines += extent_lines([extent_run(cfg, t) for t in cfg.telescopes], out, cfg.nside)
     lines += ["", f"![forecast]({fig.relative_to(out)})", "",
               f"## Commands ({seconds:.0f} s)", "", "```"]
     lines += [f"{s['command']}{'   # up to date, skipped' if s['skipped'] else ''}"
@@ -379,95 +340,6 @@ def write_summary(cfg: ForecastConfig, rows: list[dict], log_: list[dict],
     path = out / "forecast.md"
     path.write_text("\n".join(lines))
     return path
-
-
-def extent_rows(cfg: ForecastConfig, tel: str) -> list[dict]:
-    """Median L_I and EoR-window L_I of ``tel`` per extent, mean and standard deviation over
-    the realisations (from ``leakage_extent/stats.csv`` and the PS files)."""
-    tdir = Path(cfg.outdir) / tel
-    stats = stats_rows(tdir / "leakage_extent" / "stats.csv")
-    rows = []
-    for extent in cfg.extents:
-        label = extent_label(extent)
-        medians = np.array([float(r["median"]) for r in stats if r["label"] == label])
-        window = np.array([window_leakage(open_product(tdir / f"ps_{label}_s{s}.h5", "ps"))
-                           for s in cfg.realisations])
-        rows.append({"telescope": tel, "label": SETUPS[tel].label, "extent_deg": extent,
-                     "realisations": len(medians),
-                     "median": float(np.mean(medians)) if medians.size else float("nan"),
-                     "median_scatter": _scatter(medians),
-                     "window": float(np.nanmean(window)) if np.isfinite(window).any()
-                     else float("nan"), "window_scatter": _scatter(window)})
-    return rows
-
-
-def _scatter(x: np.ndarray) -> float:
-    return float(np.nanstd(x, ddof=1)) if np.sum(np.isfinite(x)) > 1 else 0.0
-
-
-def beyond_ps(cfg: ForecastConfig, tel: str, inner: float = 15.0):
-    """The power spectra of the sky beyond ``inner`` deg (first realisation): the uv cube
-    of the largest extent minus that of ``inner`` (gridding is linear: the same weights,
-    so the difference is the cube of the pixels between them), delay-transformed; None
-    without both extents."""
-    from msleak.verbs.power import power_spectrum
-    from msleak.verbs.transform import transform
-
-    if inner not in cfg.extents or max(cfg.extents) <= inner:
-        return None
-    tdir, seed = Path(cfg.outdir) / tel, cfg.seed
-    outer = open_product(tdir / f"grid_{extent_label(max(cfg.extents))}_s{seed}.h5", "uvcube")
-    near = open_product(tdir / f"grid_{extent_label(inner)}_s{seed}.h5", "uvcube")
-    diff = outer.copy()
-    diff["vis"] = outer["vis"] - near["vis"]
-    diff.attrs["column"] = f"{outer.attrs.get('column')} - {near.attrs.get('column')}"
-    return power_spectrum(transform(diff))
-
-
-def _extent_lines(cfg: ForecastConfig, out: Path) -> list[str]:
-    """The table of L_I against the extent, its figure, and where the leakage from beyond
-    15 deg lands in k-space."""
-    if not cfg.extents:
-        return []
-    rows = [r for tel in cfg.telescopes for r in extent_rows(cfg, tel)]
-    with (out / "extents.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    fig = plot_extents(rows, out / "figures" / "extents.png")
-    lines = ["", "## L_I against the sky's extent", "",
-             f"All-sky HEALPix skies (NSIDE {cfg.nside}, the same realisations), every pixel "
-             "above the horizon within the extent of the phase centre "
-             "(docs/telescopes.md); mean ± standard deviation over the realisations.", "",
-             "| telescope | extent (deg) | median L_I (%) | EoR window L_I (%) |",
-             "|---|---|---|---|"]
-    lines += [f"| {r['label']} | {r['extent_deg']:g} | {r['median']:.3g} ± "
-              f"{r['median_scatter']:.2g} | {r['window']:.3g} ± {r['window_scatter']:.2g} |"
-              for r in rows]
-    lines += ["", f"![L_I against extent]({fig.relative_to(out)})", ""]
-    for tel in cfg.telescopes:
-        ps = beyond_ps(cfg, tel)
-        if ps is None:
-            continue
-        path = plot_ps2d(ps, out / "figures" / f"beyond15_{tel}.png", stokes=("I", "P"))
-        lines += [f"{SETUPS[tel].label}, the sky beyond 15 deg: "
-                  f"{_above_horizon(ps):.3g} % of its leaked P_I lies above the horizon "
-                  f"wedge. ![beyond 15 deg]({path.relative_to(out)})", ""]
-    return lines
-
-
-def _above_horizon(ps) -> float:
-    """Percentage of the cylindrical P_I (Jy^2, weighted by the cells per bin) above the
-    horizon wedge."""
-    slope = float(ps.attrs["wedge_slope_horizon"])
-    k_par = ps["k_par"].values[:, None]
-    k_perp = ps["k_perp"].values[None, :]
-    n = ps["counts"].transpose("k_par", "k_perp").values
-    p_i = ps["power_jy2"].sel(stokes="I").transpose("k_par", "k_perp").values
-    ok = (n > 0) & np.isfinite(p_i)
-    total = np.sum((n * p_i)[ok])
-    return float(100.0 * np.sum((n * p_i)[ok & (k_par > slope * k_perp)]) / total) \
-        if total > 0 else float("nan")
 
 
 def _budget_lines(cfg: ForecastConfig) -> list[str]:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from msleak.errors import InputError
 from msleak.study.config import StudyConfig
+from msleak.study.extents import ExtentRun, allsky_step, extent_steps
 from msleak.study.report import write_report
 from msleak.study.steps import Step, StepRunner, predict_precision
 
@@ -212,7 +213,24 @@ def study_steps(cfg: StudyConfig) -> list[Step]:
         steps += _field_steps(cfg, fld, crops, fig)
     for fld in cfg.fields:
         steps += _budget_steps(cfg, fld, crops)
+    if cfg.extents:
+        runs = extent_runs(cfg)
+        steps += [allsky_step(path, cfg.nside, seed, cfg.allsky_args)
+                  for seed, path in runs[0].skies.items()]
+        for run in runs:
+            steps += extent_steps(run)
     return steps
+
+
+def extent_runs(cfg: StudyConfig) -> list[ExtentRun]:
+    """The extent runs of every field (docs/paper.md, "L_I against the sky's extent")."""
+    sky = Path(cfg.outdir) / "sky"
+    skies = {seed: sky / f"allsky{cfg.suffix(seed)}.skyh5" for seed in cfg.realisations}
+    return [ExtentRun(name=fld, label=f"LOFAR {fld.upper()}", ms=Path(cfg.outdir) / fld /
+                      f"{fld}.ms", outdir=Path(cfg.outdir) / fld,
+                      predict=["--beam", cfg.beam, *predict_precision(cfg.double)],
+                      grid=cfg.grid_args, ps=cfg.ps_args, skies=skies, extents=cfg.extents,
+                      after=f"predict-{fld}", field_name=fld.upper()) for fld in cfg.fields]
 
 
 def study_resolution(outdir: Path) -> str | None:

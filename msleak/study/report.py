@@ -275,6 +275,11 @@ def write_report(cfg: StudyConfig, steps, step_log, seconds: float) -> Path:
                 lines += [f"![2D PS {fld} {label}]({_rel(png, out)})", ""]
     if estimates:
         lines += _summary(estimates, cfg.seeds)
+    if cfg.extents:
+        from msleak.study.extents import extent_lines
+        from msleak.study.pipeline import extent_runs
+
+        lines += extent_lines(extent_runs(cfg), out, cfg.nside)
     lines += ["## Commands", "",
               "Every step is one msleak command; run from the folder that holds this report's "
               "parent. Times are wall-clock seconds.", "",

@@ -12,7 +12,8 @@ from click.testing import CliRunner
 
 from msleak.cli import cli
 from msleak.errors import InputError
-from msleak.study.forecast import ForecastConfig, beyond_ps, extent_label, forecast_steps
+from msleak.study.extents import beyond_ps, extent_label
+from msleak.study.forecast import ForecastConfig, extent_run, forecast_steps
 
 
 def test_extent_steps_and_settings(tmp_path):
@@ -22,8 +23,8 @@ def test_extent_steps_and_settings(tmp_path):
     steps = {s.name: s for s in forecast_steps(cfg)}
     predict = [str(a) for a in steps["predict-lofar-extents"].args]
     assert predict.count("--extent") == 3 and "15" in predict
-    assert [str(a) for a in steps[f"allsky-s{cfg.seed}-150MHz"].args][2:4] == ["--healpix",
-                                                                               "16"]
+    allsky = [str(a) for a in steps[f"allsky-allsky_s{cfg.seed}_150MHz"].args]
+    assert allsky[2:4] == ["--healpix", "16"]
     assert extent_label(7.5) == "e7p5"
     for bad in (dict(extents=(0,)), dict(extents=(200,)), dict(extents=(15,), nside=12)):
         with pytest.raises(InputError):
@@ -70,8 +71,39 @@ def test_forecast_extents_and_the_sky_beyond_15_deg(tmp_path):
     cube = grid(ms, column="MODEL_BEYOND", cell=float(uv.attrs["cell_lambda"]),
                 uv_range=(float(uv.attrs["uv_min_lambda"]), float(uv.attrs["uv_max_lambda"])))
     direct = power_spectrum(transform(cube))
-    ours = beyond_ps(cfg, "lofar")
+    ours = beyond_ps(extent_run(cfg, "lofar"))
     for stokes in ("I", "P"):
         a = ours["power"].sel(stokes=stokes).values
         b = direct["power"].sel(stokes=stokes).values
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9 * np.nanmax(np.abs(b)))
+
+
+def test_paper_extents_for_every_field(tmp_path):
+    from msleak.study.config import StudyConfig
+    from msleak.study.pipeline import study_steps
+
+    cfg = StudyConfig(outdir=tmp_path, fields=("ncp", "3c196"), quick=True, seeds=2,
+                      extents=(15, 4))
+    steps = {s.name: s for s in study_steps(cfg)}
+    assert cfg.nside == 16 and {"allsky-allsky", "allsky-allsky_s2019"} <= set(steps)
+    for fld in ("ncp", "3c196"):
+        predict = [str(a) for a in steps[f"predict-{fld}-extents"].args]
+        assert predict.count("--extent") == 4
+        assert f"MODEL_E15_S{cfg.seed + 1}" in predict
+    with pytest.raises(InputError, match="nside must be a power of 2"):
+        StudyConfig(outdir=tmp_path, extents=(15,), nside=3)
+
+
+def test_paper_extents_report(tmp_path):
+    out = tmp_path / "study"
+    result = CliRunner().invoke(cli, ["-q", "paper", str(out), "--field", "3c196",
+                                      "--stations", "CS00[1-4]HBA*", "--duration", "1",
+                                      "--interval", "600", "--nchan", "16", "--workers", "1",
+                                      "--extents", "15,90", "--nside", "8"])
+    assert result.exit_code == 0, result.output
+    stats = list(csv.DictReader(open(out / "3c196" / "leakage_extent" / "stats.csv")))
+    median = {r["label"]: float(r["median"]) for r in stats}
+    report = (out / "report.md").read_text()
+    for label, extent in (("e15", 15), ("e90", 90)):
+        assert f"| LOFAR 3C196 | {extent} | {median[label]:.3g} ± 0 |" in report
+    assert (out / "figures" / "beyond15_3c196.png").exists()
