@@ -12,7 +12,8 @@ from msleak.errors import InputError
 from msleak.parallel.runner import parse_memory
 
 __all__ = ["parse_float_list", "FloatList", "MemorySize", "cosmology_options", "beam_model_options",
-           "step_invoker", "study_workers_option", "study_invoker"]
+           "step_invoker", "study_workers_option", "study_invoker", "study_extent_options",
+           "study_instrument_seeds_option"]
 
 
 def parse_float_list(text: str, n: int | None = None, name: str = "value") -> list[float]:
@@ -129,6 +130,24 @@ study_double_option = click.option(
          "the disk), but raised the "
          "15 deg 3C196 median of L_I by 1.5 % and the forecast's LOFAR median by 74 % "
          "(docs/leakage.md).")
+
+
+def study_extent_options(func):
+    """``--extents`` and ``--nside`` of the multi-step commands (paper, forecast)."""
+    func = click.option("--nside", type=click.IntRange(1, None), default=None, metavar="N",
+                        help="NSIDE of the all-sky skies of --extents, a power of 2 [64; "
+                             "--quick: 16].")(func)
+    return click.option(
+        "--extents", type=FloatList(), default=None, metavar="DEG,DEG,...",
+        help="Also predict all-sky HEALPix skies of the same realisations within each extent "
+             "(deg from the phase centre, up to 180: every pixel above the horizon) and "
+             "tabulate and plot L_I against the extent (docs/telescopes.md).")(func)
+
+
+#: ``--instrument-seeds`` of the multi-step commands (paper, forecast)
+study_instrument_seeds_option = click.option(
+    "--instrument-seeds", type=click.IntRange(1, None), default=3, show_default=True,
+    metavar="N", help="Realisations of each corruption in the budget (docs/paper.md).")
 
 
 @contextlib.contextmanager

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import FloatList, study_double_option, study_invoker, study_workers_option
+from msleak.cli._common import (study_double_option, study_extent_options,
+                                study_instrument_seeds_option, study_invoker,
+                                study_workers_option)
 from msleak.study.config import Instrument
 from msleak.study.forecast import SETUPS, ForecastConfig, run_forecast
 
@@ -76,16 +78,8 @@ def _noise(ctx, param, value):
 @click.option("--noise", callback=_noise, default=None, metavar="JY|TEL=JY,...",
               help="Add budget runs with thermal noise: one SEFD (Jy) for every telescope, or "
               "one per telescope (e.g. lofar=4000); gridded in even/odd halves.")
-@click.option("--extents", type=FloatList(), default=None, metavar="DEG,DEG,...",
-              help="Also predict all-sky HEALPix skies within each extent (deg from the "
-              "phase centre, up to 180: every pixel above the horizon), the same "
-              "realisations, and tabulate and plot L_I against the extent "
-              "(docs/telescopes.md).")
-@click.option("--nside", type=click.IntRange(1, None), default=None, metavar="N",
-              help="NSIDE of the all-sky skies of --extents, a power of 2 [64; --quick: 16].")
-@click.option("--instrument-seeds", type=click.IntRange(1, None), default=3,
-              show_default=True, metavar="N",
-              help="Realisations of each corruption in the budget (docs/paper.md).")
+@study_extent_options
+@study_instrument_seeds_option
 @study_double_option
 @study_workers_option("the telescopes' predicts overlap, as do the grids and power spectra "
                       "of a telescope")

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import click
 
-from msleak.cli._common import FloatList, study_double_option, study_invoker, study_workers_option
+from msleak.cli._common import (study_double_option, study_extent_options,
+                                study_instrument_seeds_option, study_invoker,
+                                study_workers_option)
 from msleak.study.config import (OBSERVED_UV_RANGE, RESOLUTIONS, SKY_FOV_DEG, StudyConfig,
                                   nyquist_npix)
 from msleak.study.pipeline import run_study
@@ -79,15 +81,8 @@ def _observed(ctx, param, values):
 @click.option("--noise", "noise_sefd", type=float, default=None, metavar="JY",
               help="Add budget runs with thermal noise of this SEFD (Jy), gridded in "
               "even/odd halves (msleak noise).")
-@click.option("--extents", type=FloatList(), default=None, metavar="DEG,DEG,...",
-              help="Also predict all-sky HEALPix skies of the same realisations within each "
-              "extent (deg from the phase centre, up to 180: every pixel above the horizon) "
-              "for every field, and tabulate and plot L_I against the extent (docs/paper.md).")
-@click.option("--nside", type=click.IntRange(1, None), default=None, metavar="N",
-              help="NSIDE of the all-sky skies of --extents, a power of 2 [64; --quick: 16].")
-@click.option("--instrument-seeds", type=click.IntRange(1, None), default=3,
-              show_default=True, metavar="N",
-              help="Realisations of each corruption in the budget (docs/paper.md).")
+@study_extent_options
+@study_instrument_seeds_option
 @study_double_option
 @study_workers_option("the two fields' predicts overlap, as do the grid and beam maps of "
                       "a field")
