@@ -315,6 +315,13 @@ def write_noise_state(table, column: str, state: dict) -> None:
     table.flush()
 
 
+def drop_noise_state(table, column: str) -> None:
+    """Remove the ``MSLEAK_NOISE`` record of ``column`` (if any): its values are being
+    rewritten without noise."""
+    if column in table.colnames() and NOISE_KEYWORD in table.getcolkeywords(column):
+        table.removecolkeyword(column, NOISE_KEYWORD)
+
+
 def write_run_state(table, states: dict[str, dict]) -> None:
     """Store the run records of one run's columns (``{column: record}``) and flush the
     table to disk once.

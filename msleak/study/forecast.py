@@ -360,7 +360,7 @@ def _budget_lines(cfg: ForecastConfig) -> list[str]:
         instrument = cfg.instrument_of(tel)
         if instrument.noise_sefd is not None:
             notes += [f"{SETUPS[tel].label}: " + text for text in detectable_text(
-                tdir / f"ps_{label}.h5", [tdir / f"ps_noise{r}.h5" for r in
+                tdir / "ps_noise0.h5", [tdir / f"ps_noise{r}.h5" for r in
                                           range(1, instrument.seeds + 1)],
                 instrument.noise_sefd, tdir / f"{tel}.ms") if text]
     if not lines:

@@ -179,22 +179,26 @@ def budget_steps(b: Budget, runs: list, noise_sefd) -> list[Step]:
 
 def _budget_products(b: Budget, kind: str, keys: list, column: dict, previous: str
                      ) -> list[Step]:
-    """Grid (one pass over the MS), transform, ps and leakage of one kind's runs."""
+    """Grid (one pass over the MS), transform, ps and leakage of one kind's runs; the noise
+    runs' grid also holds the ideal column in even/odd halves as realisation 0, the
+    noiseless reference of the smallest detectable L_I (not in the leakage result)."""
     split = ["--split", "even-odd"] if kind == "noise" else []
+    gridded = [(kind, 0)] + keys if kind == "noise" else keys
+    column = {**column, (kind, 0): b.ideal_column}
     args = ["grid", b.ms, "--overwrite", *b.grid, *split]
-    for key in keys:
+    for key in gridded:
         args += ["--column", column[key], "-o", b.outdir / f"grid_{kind}{key[1]}.h5"]
     steps = [Step(f"grid-{b.name}-{kind}", args, reads=[b.ms], after=[previous],
-                  outputs=[b.outdir / f"grid_{kind}{r}.h5" for _, r in keys])]
+                  outputs=[b.outdir / f"grid_{kind}{r}.h5" for _, r in gridded])]
     ps_files = []
-    for _, r in keys:
+    for _, r in gridded:
         grid, delay, ps = (b.outdir / f"{x}_{kind}{r}.h5" for x in ("grid", "delay", "ps"))
         steps += [Step(f"transform-{b.name}-{kind}{r}", ["transform", grid, "-o", delay,
                                                          "--overwrite"],
                        inputs=[grid], outputs=[delay]),
                   Step(f"ps-{b.name}-{kind}{r}", ["ps", delay, "-o", ps, "--overwrite",
                                                   *b.ps], inputs=[delay], outputs=[ps])]
-        ps_files.append(ps)
+        ps_files += [ps] if r else []
     leak = b.outdir / f"leakage_{kind}"
     steps.append(Step(f"leakage-{b.name}-{kind}", [
         "leakage", *ps_files, "--labels", ",".join([b.label] * len(keys)),

@@ -195,15 +195,16 @@ def _detectable(cfg: StudyConfig, fdir: Path, label: str) -> list[str]:
     """The smallest detectable L_I of one field's budget, if it has noise runs."""
     if cfg.noise_sefd is None:
         return []
-    return detectable_text(fdir / f"ps_{label}.h5", [fdir / f"ps_noise{r}.h5" for r in
-                                                     range(1, cfg.instrument_seeds + 1)],
+    return detectable_text(fdir / "ps_noise0.h5", [fdir / f"ps_noise{r}.h5" for r in
+                                                   range(1, cfg.instrument_seeds + 1)],
                            cfg.noise_sefd, fdir / f"{fdir.name}.ms")
 
 
 def detectable_text(ideal: Path, noisy: list[Path], sefd: float, ms: Path) -> list[str]:
     """The smallest L_I the thermal noise lets the observation ``ms`` detect (3 sigma per
-    voxel; :func:`msleak.leakage.detectable.detectable_leakage`) from the noiseless PS
-    ``ideal`` and the noisy ones, as report lines (none while a file is missing)."""
+    voxel; :func:`msleak.leakage.detectable.detectable_leakage`) from the even/odd PS of
+    the noiseless column ``ideal`` and the noisy ones, as report lines (none while a file
+    is missing)."""
     from msleak.io.ms import read_times
     from msleak.leakage.detectable import detectable_leakage
 
@@ -212,7 +213,8 @@ def detectable_text(ideal: Path, noisy: list[Path], sefd: float, ms: Path) -> li
     l_min = detectable_leakage(open_product(ideal, "ps"), [open_product(p, "ps")
                                                           for p in noisy], nsigma=3.0)
     times = read_times(ms)
-    hours = (times.max() - times.min()) / 3600.0 if times.size > 1 else 0.0
+    step = float(np.median(np.diff(times))) if times.size > 1 else 0.0
+    hours = (times.max() - times.min() + step) / 3600.0    # first to last slot, both whole
     return [f"Smallest L_I detectable with this observation's thermal noise (SEFD "
             f"{sefd:g} Jy, {hours:.3g} h, the same grid and uv range): median "
             f"{np.median(l_min):.3g} % over the voxels (16th-84th percentile "

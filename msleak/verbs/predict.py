@@ -134,7 +134,8 @@ def _make_runs(paths: list[Path], targets: list, given: dict, dtype: np.dtype) -
     options = beam_options(g["beam"], diameter=g["diameter"], element_model=g["element_model"],
                            beam_file=g["beam_file"], ionosphere=g["ionosphere"],
                            beam_errors=g["beam_errors"])
-    _check_options(paths, targets, g["double_column"], g["noise"])
+    _check_options(paths, targets, g["double_column"], g["noise"],
+                   g["field"] is not None or g["spw"] is not None)
     degrid = DegridOptions(g["method"], g["epsilon"], g["nsub"])
     return [runstate.new_run(make_plan(
         p, targets, beam=g["beam"], centre_correction=g["centre_correction"], dtype=dtype,
@@ -144,10 +145,11 @@ def _make_runs(paths: list[Path], targets: list, given: dict, dtype: np.dtype) -
         flat_spectrum=g["flat_spectrum"])) for p in paths]
 
 
-def _check_options(paths: list[Path], targets: list, double_column: bool, noise) -> None:
+def _check_options(paths: list[Path], targets: list, double_column: bool, noise,
+                   selected: bool) -> None:
     """Refuse options that do not go together; repair the MSs a killed run left (only
     when they are written)."""
-    _check_noise(paths, targets, noise)
+    _check_noise(paths, targets, noise, selected)
     in_memory = targets[0].column is None
     if in_memory and len(paths) > 1:
         raise InputError("column=None returns the visibilities of one Measurement Set; "
@@ -164,25 +166,30 @@ def _check_options(paths: list[Path], targets: list, double_column: bool, noise)
             colio.repair_interrupted(p)  # header files a killed run may have truncated
 
 
-def _check_noise(paths: list[Path], targets: list, noise) -> None:
-    """Refuse noise without a column to add it to, or SEFDs that do not fit the MSs."""
+def _check_noise(paths: list[Path], targets: list, noise, selected: bool) -> None:
+    """Refuse noise without a column to add it to, with a field or spw selection (the noise
+    covers every row), or SEFDs that do not fit the MSs."""
     if noise is None:
         return
     if targets[0].column is None:
         raise InputError("noise is added to the columns predict writes; give a column, or "
                          "add noise to returned visibilities yourself", param="noise")
+    if selected:
+        raise InputError("noise covers every row of the MS, not only the selected `field` "
+                         "or `spw`: predict every field and spw, or add the noise afterwards "
+                         "with msleak noise", param="noise")
     for path in paths:
         station_sefd(noise, read_antennas(path).names)
 
 
 def _add_noise(runs: list, sefd, seed: int) -> None:
-    """Add the thermal noise to each column just predicted (from its first row: the column
-    was rewritten) or left as it was (continuing a noise run that was interrupted); nothing
-    without ``sefd``."""
+    """Add the thermal noise to each column, from its first row: the noise starts once every
+    column is predicted, so a column is noiseless whether this run wrote it or left it as
+    an earlier, interrupted run of the same skies wrote it; nothing without ``sefd``."""
     for run in runs if sefd is not None else ():
         for target, result in zip(run.plan.targets, run.results):
             added = add_noise(run.plan.ms, target.column, sefd, seed, target.column,
-                              start_over=not result.skipped)
+                              start_over=True)
             result.noise_sigma_jy = added.sigma_jy
 
 

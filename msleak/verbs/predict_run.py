@@ -110,6 +110,7 @@ def start(run: Run, restart: bool, bar) -> None:
                      target.column)
             continue
         run.active.append(k)
+        colio.drop_noise_state(table, target.column)   # predict rewrites the column
         run.results[k].resumed = state is not None
         if state is not None:
             log.info("%s: resuming an interrupted predict into %s (%d rows done)", plan.ms,

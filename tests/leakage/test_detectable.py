@@ -37,9 +37,8 @@ def test_noise_of_known_rms_gives_the_known_threshold():
     l_min = detectable_leakage(ideal, noisy, nsigma=3.0)
     assert l_min.size == 2 * NDELAY * NCELL
     expected = 100 * np.sqrt(3 * sigma / 1e4)
-    np.testing.assert_allclose(np.sort(np.unique(np.round(l_min, 12))),
-                               np.sort(100 * np.sqrt(3 * measured / 1e4)), rtol=1e-12)
-    np.testing.assert_allclose(np.median(l_min), np.median(expected), rtol=0.15)
+    # sqrt halves the rms's relative sampling error: 2.5 % is 1 sigma of the median's cell
+    np.testing.assert_allclose(np.median(l_min), np.median(expected), rtol=0.1)
 
 
 def test_a_leak_at_the_threshold_stands_at_nsigma():

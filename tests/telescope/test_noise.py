@@ -220,3 +220,19 @@ def test_predict_noise_is_refused_without_a_column_or_with_unknown_stations(ms, 
         predict(ms, _point_sky(ms), column=None, beam="none", noise=SEFD)
     with pytest.raises(InputError, match="sefd has no value for station"):
         predict(ms, _point_sky(ms), column="NOISY", beam="none", noise={"CS999": 1.0})
+
+
+def test_predict_noise_is_refused_with_a_field_selection_and_a_stale_record_is_dropped(ms):
+    from msleak.io.columns import write_noise_state
+    from msleak.verbs.predict import predict
+
+    with pytest.raises(InputError, match="noise covers every row of the MS"):
+        predict(ms, _point_sky(ms), column="NOISY", beam="none", noise=SEFD, field=0)
+    predict(ms, _point_sky(ms), column="CLEAN", beam="none")
+    with table(ms, readonly=False) as t:      # a noise run killed half way
+        write_noise_state(t, "CLEAN", {"settings": "x", "rows_done": 10, "complete": False})
+    predict(ms, _point_sky(ms), column="CLEAN", beam="none", restart=True)
+    with table(ms) as t:
+        assert "MSLEAK_NOISE" not in t.getcolkeywords("CLEAN")
+    cube = msleak.grid(ms, column="CLEAN", cell=16.0)   # not refused as half written
+    assert float(np.abs(cube["vis"]).max()) > 0
