@@ -187,6 +187,7 @@ def read_healpix_fits(path: str | os.PathLike, *, flat_spectrum: bool = False) -
         check_complete(path, hdu)
         header = hdu.header
         geometry = _geometry(path, header)
+        cosmo = _cosmo_convention(path, header, hdul[0].header)
         if isinstance(hdu, fits.BinTableHDU):
             parts = _table_maps(path, hdu, hdul[0].header, flat_spectrum)
         elif hdu.is_image:
@@ -195,10 +196,22 @@ def read_healpix_fits(path: str | os.PathLike, *, flat_spectrum: bool = False) -
             raise InputError(f"{path}: the HEALPix HDU is neither a binary table nor an image")
     nside, order, frame = geometry
     pixels, freq, stokes, unit, rm, flat = parts
+    if cosmo:                         # U of the COSMO convention is -U of the IAU's
+        stokes = stokes * np.array([1.0, 1.0, -1.0, 1.0])[:, None, None]
     pixels, stokes, rm = _drop_unseen(path, pixels, stokes, rm)
     return HealpixSky(nside=nside, order=order, pixels=pixels, freq_hz=freq, stokes=stokes,
                       unit=unit, label=str(path), frame=frame, flat=flat,
                       rotation_measure=rm)
+
+
+def _cosmo_convention(path: Path, header, primary) -> bool:
+    """Whether the maps' Q, U follow the COSMO convention (POLCCONV = 'COSMO', as Planck
+    writes them: U of opposite sign); IAU when POLCCONV says so or is absent."""
+    conv = str(header.get("POLCCONV", primary.get("POLCCONV", "IAU"))).strip().upper()
+    if conv not in ("IAU", "COSMO"):
+        raise InputError(f"{path}: POLCCONV is {conv!r}; give 'IAU' or 'COSMO' (the sign "
+                         "convention of U)")
+    return conv == "COSMO"
 
 
 def _geometry(path: Path, header) -> tuple[int, str, str]:

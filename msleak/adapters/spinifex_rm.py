@@ -115,10 +115,8 @@ def model_rotation_measures(spec: str, ms: str | os.PathLike, *,
     used = read_used_antennas(ms)
     names = [antennas.names[k] for k in used]
     samples, rms, last_end = [], [], -np.inf
-    for field_id, fld in enumerate(read_fields(ms)):
-        times = read_times(ms, field_id=field_id)
-        if not times.size:
-            continue
+    fields = [(read_times(ms, field_id=k), fld) for k, fld in enumerate(read_fields(ms))]
+    for times, fld in sorted((f for f in fields if f[0].size), key=lambda f: f[0][0]):
         if times[0] <= last_end:
             raise InputError(f"{ms}: fields observed at overlapping times; the RM model "
                              "follows one direction at a time: split the MS by field")
@@ -171,14 +169,16 @@ def pierce_points(positions_itrf, times_mjd_s, ra: float, dec: float,
     change it by far less than 1e-6 rad)."""
     import astropy.units as u
     from astropy.coordinates import ITRS, AltAz, EarthLocation, SkyCoord
+    from astropy.utils import iers
     from spinifex.geometry.get_ipp import get_ipp_from_itrs
 
     positions = np.atleast_2d(np.asarray(positions_itrf, dtype=float))
     times = _utc(np.atleast_1d(times_mjd_s))
     centre = EarthLocation.from_geocentric(*positions.mean(axis=0), unit=u.m)
-    los = SkyCoord(ra * u.rad, dec * u.rad, frame="icrs").transform_to(
-        ITRS(obstime=times, location=centre))
-    altaz = los.transform_to(AltAz(obstime=times, location=centre))
+    with iers.conf.set_temp("auto_download", False):     # nothing downloaded at run time
+        los = SkyCoord(ra * u.rad, dec * u.rad, frame="icrs").transform_to(
+            ITRS(obstime=times, location=centre))
+        altaz = los.transform_to(AltAz(obstime=times, location=centre))
     if np.any(altaz.alt.deg <= 0):
         raise InputError(f"the phase centre is below the horizon at some time (lowest "
                          f"elevation {np.min(altaz.alt.deg):.1f} deg): no ionospheric "

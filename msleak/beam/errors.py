@@ -133,8 +133,8 @@ def perturb_lofar(array: LofarArray, errors: BeamErrors) -> LofarArray:
     ``round(failed * ntile)`` tiles of each field are switched off (field centres and phase
     references stay) and, with gain errors, every field gets its ``element_gains``
     (:func:`draw_gains` per tile, element and feed, or per tile and feed for
-    ``level='tile'``; drawn for failed tiles too, so that the draws do not depend on
-    ``failed``)."""
+    ``level='tile'``; drawn after the rotation and the failures from the same stream, for
+    failed tiles too, so that adding gains leaves those draws as they were)."""
     if errors.none:
         return array
     stations = []

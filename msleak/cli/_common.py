@@ -141,7 +141,8 @@ def study_extent_options(func):
         "--extents", type=FloatList(), default=None, metavar="DEG,DEG,...",
         help="Also predict all-sky HEALPix skies of the same realisations within each extent "
              "(deg from the phase centre, up to 180: every pixel above the horizon) and "
-             "tabulate and plot L_I against the extent (docs/telescopes.md).")(func)
+             "tabulate and plot L_I against the extent; with 15 and a larger extent, also "
+             "the PS of the sky beyond 15 deg (docs/paper.md, docs/telescopes.md).")(func)
 
 
 #: ``--instrument-seeds`` of the multi-step commands (paper, forecast)

@@ -63,7 +63,7 @@ def detectable_leakage(ideal: xr.Dataset, noisy: Sequence[xr.Dataset],
     (:func:`noise_sigma_per_cell`). Voxels as in the L_I statistics (both (u, tau) and
     (-u, -tau) of every cell and delay)."""
     if not nsigma > 0:
-        raise InputError(f"nsigma must be positive, got {nsigma}")
+        raise InputError(f"nsigma must be positive, got {nsigma}", param="nsigma")
     sigma = noise_sigma_per_cell(ideal, noisy)
     p_p = voxel_power(ideal, "noiseless PS")[1]
     with np.errstate(divide="ignore", invalid="ignore"):

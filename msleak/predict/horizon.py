@@ -97,7 +97,10 @@ def mask_jones(jones, mask: np.ndarray, nstation: int, dtype):
     if isinstance(jones, JonesFactors):
         scalar = np.broadcast_to(jones.scalar, (jones.scalar.shape[0], mask.shape[0])
                                  + jones.scalar.shape[2:])
+        element = jones.element
+        if not np.all(np.isfinite(element)):     # 0 x inf below the horizon would be NaN
+            element = np.nan_to_num(element, nan=0.0, posinf=0.0, neginf=0.0)
         return JonesFactors(np.where(mask[None, :, None, :], scalar, 0).astype(
-            jones.scalar.dtype, copy=False), jones.element, jones.group)
+            jones.scalar.dtype, copy=False), element, jones.group)
     return np.where(mask[None, :, None, :, None, None], jones, 0).astype(jones.dtype,
                                                                          copy=False)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -290,5 +290,4 @@ def healpix_to_unit(sky: HealpixSky, unit: str) -> HealpixSky:
         return sky
     per_k = jy_per_kelvin(sky.freq_hz, 1.0)[None, :, None]
     stokes = sky.stokes * per_k if unit == "Jy/sr" else sky.stokes / per_k
-    return HealpixSky(nside=sky.nside, order=sky.order, pixels=sky.pixels,
-                      freq_hz=sky.freq_hz, stokes=stokes, unit=unit, label=sky.label)
+    return replace(sky, stokes=stokes, unit=unit)

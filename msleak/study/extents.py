@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msleak.errors import InputError
 from msleak.io.products import open_product
 from msleak.leakage.fraction import window_leakage
 from msleak.plot.forecast import plot_extents
@@ -28,7 +29,8 @@ from msleak.study.steps import Step
 __all__ = ["ExtentRun", "extent_label", "allsky_step", "extent_steps", "extent_rows",
            "beyond_ps", "extent_lines", "BEYOND_DEG"]
 
-#: the extent (deg) of the paper's widest field, beyond which the leakage is located
+#: the extent (deg from the phase centre) beyond which the leakage is located: twice the
+#: half-width of the paper's widest (15 x 15 deg) field, so the sky the flat study leaves out
 BEYOND_DEG = 15.0
 
 
@@ -136,6 +138,12 @@ def beyond_ps(run: ExtentRun, inner: float = BEYOND_DEG):
     outer = open_product(run.outdir / f"grid_{extent_label(max(run.extents))}_s{seed}.h5",
                          "uvcube")
     near = open_product(run.outdir / f"grid_{extent_label(inner)}_s{seed}.h5", "uvcube")
+    same = all(np.array_equal(outer[k].values, near[k].values)
+               for k in ("weight", "u", "v", "freq"))
+    if not same:
+        raise InputError(f"{run.outdir}: the uv cubes of {extent_label(max(run.extents))} "
+                         f"and {extent_label(inner)} differ in weights or axes; grid both "
+                         "columns in one pass to subtract them")
     diff = outer.copy()
     diff["vis"] = outer["vis"] - near["vis"]
     diff.attrs["column"] = f"{outer.attrs.get('column')} - {near.attrs.get('column')}"

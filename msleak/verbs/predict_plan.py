@@ -316,12 +316,13 @@ def make_plan(ms: Path, targets: list, *, beam, centre_correction, interpolate_f
               "precision": dtype.name, "groups": [f"f{f}_d{d}" for f, d in groups],
               **degrid.settings(),
               "beam_options": dict(sorted(beam_options.items())),
-              "min_elevation_deg": float(min_elevation), "flat_spectrum": bool(flat_spectrum),
               "msleak_version": __version__}
+    healpix = {"min_elevation_deg": float(min_elevation), "flat_spectrum": bool(flat_spectrum)}
     settings = [{"sky": str(t.path.resolve()) if t.path is not None else t.label,
                  "sky_sha256": t.sha256,
                  "fov_deg": -1.0 if t.fov_deg is None else t.fov_deg,
-                 "extent_deg": -1.0 if t.extent_deg is None else t.extent_deg, **common}
+                 "extent_deg": -1.0 if t.extent_deg is None else t.extent_deg, **common,
+                 **(healpix if isinstance(t.sky, HealpixSky) else {})}
                 for t in targets]
     return Plan(ms=ms, fields_meta=fields_meta, spw_meta=spw_meta, ddesc=ddesc,
                 groups=groups, feeds=feeds, total_rows=total_rows, targets=targets,

@@ -290,3 +290,16 @@ def test_healpix_sky_refuses_what_does_not_fit(kw, words):
     with pytest.raises(InputError, match=words.replace("(", r"\(")):
         HealpixSky(nside=NSIDE, order="ring", pixels=np.arange(NPIX), freq_hz=FREQ,
                    stokes=np.zeros((4, FREQ.size, NPIX)), **kw)
+
+
+def test_cosmo_convention_maps_have_their_u_turned_and_others_are_refused(tmp_path):
+    from msleak.adapters.healpix import read_healpix_fits
+
+    iau = read_healpix_fits(_table_file(tmp_path / "iau.fits", {"COORDSYS": "C"}))
+    cosmo = read_healpix_fits(_table_file(tmp_path / "cosmo.fits", {"COORDSYS": "C",
+                                                                     "POLCCONV": "COSMO"}))
+    np.testing.assert_array_equal(cosmo.stokes[1], iau.stokes[1])
+    np.testing.assert_array_equal(cosmo.stokes[2], -iau.stokes[2])
+    assert np.all(iau.stokes[2] == 1.0)
+    with pytest.raises(InputError, match="POLCCONV is 'OTHER'"):
+        read_healpix_fits(_table_file(tmp_path / "x.fits", {"POLCCONV": "OTHER"}))
