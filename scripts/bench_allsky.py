@@ -180,6 +180,7 @@ def _run(timed, name: str, cmd: list, out: Path, runs: dict, **extra) -> dict:
     r.pop("stdout", None)
     # short commands: the driver keeps only the last 4000 characters of this script's output
     r["command"] = r["command"].replace(f"{out}/", "").replace(sys.executable, "python")
+    r["stderr"] = r["stderr"][-300:]
     r.update(extra)
     runs[name] = r
     print(f"bench_allsky: {name}: {r['wall_s']:.1f} s, CPU {r['cpu_s']} s, peak "
@@ -254,7 +255,8 @@ def bench(out: Path, quick: bool) -> dict:
     lo, hi = (runs.get(f"predict_lofar_nside{n}", {}) for n in size["lofar"])
     f["lofar_wall_ratio"] = _ratio(hi.get("wall_s"), lo.get("wall_s"))
     f["lofar_cpu_ratio"] = _ratio(hi.get("cpu_s"), lo.get("cpu_s"))
-    f["goals"] = goals(runs, size, f)
+    # the targets are set for the full sizes: a --quick run is not checked against them
+    f["goals"] = {} if quick else goals(runs, size, f)
     return {"runs": runs, "figures": f}
 
 
