@@ -10,6 +10,8 @@ EveryBeam direct (beam), DP3 predict + applybeam (predict), ps_eor (PS of an ima
 and the scaling of predict and grid with sources, stations, times and channels.
 scripts/bench_degrid.py holds the stage group ``degrid`` (``msleak predict --method degrid``
 against the direct predict, and on skies of up to 512 x 512 pixels).
+scripts/bench_allsky.py times ``msleak predict`` of all-sky HEALPix skies (NSIDE 128 and
+256, LOFAR and HERA) and runs it side by side with matvis (stage ``allsky``).
 
 Paper scale (docs/science.md section 2-3): NCP, 13 h of 120 s slots, the 48 LOFAR HBA core fields, 50
 channels of 195.3125 kHz from 150 MHz, a 50 x 50-pixel Q/U sky cube over 15 deg (2500
@@ -276,7 +278,7 @@ def main() -> int:
     ap.add_argument("--only", default="", help="comma-separated stages or groups to run "
                     "(simulate, sky, beam, predict, grid, transform, ps, leakage, peers, "
                     "beam_peer, predict_peer, ps_peer, schedulers, predict_schedulers, "
-                    "grid_schedulers, scaling, predict_process, multisky, study, degrid)")
+                    "grid_schedulers, scaling, predict_process, multisky, study, degrid, allsky)")
     ap.add_argument("--process-hours", type=float, default=None,
                     help="predict_process on a fresh NCP MS of this many hours instead of "
                          "the paper MS (DP3 takes about 5 s per slot there: 35 min for 13 h)")
@@ -402,6 +404,10 @@ def main() -> int:
         bench_many_skies(stage, msleak, ms, out, results)
     if want("study"):
         bench_study(stage, msleak, out, results, args.quick)
+    if want("allsky"):
+        r = stage("allsky", [sys.executable, SCRIPTS / "bench_allsky.py", "--outdir", out,
+                             *quick], "peers")
+        r["result"] = last_json(r["stdout"])
     if want("degrid"):
         from bench_degrid import bench_degrid
 

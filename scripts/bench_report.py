@@ -240,6 +240,48 @@ def _degrid_rows(g: dict) -> list:
     return lines
 
 
+def _allsky_rows(r: dict) -> list:
+    runs, f = r.get("runs", {}), r.get("figures", {})
+    lines = [f"`msleak predict MS --sky ALL.skyh5` (every pixel above the horizon, the direct "
+             f"sum; defaults: complex64, phase-centre correction, threads), each run one whole "
+             f"process, numba's cache warm; MSs of {f.get('stations', '?')} stations (LOFAR "
+             f"HBA core fields, NCP; HERA's innermost dishes, EoR0, `--beam uvbeam`), "
+             f"{f.get('slots', '?')} slots of {f.get('interval_s', 120):g} s, "
+             f"{f.get('channels', '?')} channels; Q/U skies from `msleak sky --healpix NSIDE`. "
+             "Against matvis (CPU): a Stokes I sky on the HERA MS, msleak with "
+             "`--no-centre-correction`, matvis in a driver process of scripts/bench_allsky.py "
+             "(reads the MS and the SkyH5 file, writes a column), each at its default "
+             "precision (complex64).", "",
+             "| run | pixels | wall (s) | CPU (s) | peak memory (MiB) |", "|---|---|---|---|---|"]
+    for name, x in runs.items():
+        if name.startswith("sky_") or "wall_s" not in x:
+            continue
+        lines.append(f"| {name} | {x.get('pixels', '?')} | {x['wall_s']:.1f} | "
+                     f"{_f(x.get('cpu_s'))} | {_f(x.get('peak_rss_mib'), '.0f')} |"
+                     + (f" FAILED (exit {x['exit']})" if x["exit"] else ""))
+    acc = f.get("msleak_vs_matvis")
+    lines += ["", "| figure | value | goal | |", "|---|---|---|---|",
+              f"| matvis / msleak, wall | {_f(f.get('matvis_over_msleak_wall'), '.2f')} | | |",
+              f"| matvis / msleak, CPU | {_f(f.get('matvis_over_msleak_cpu'), '.2f')} | | |",
+              f"| relative rms msleak - matvis, all correlations | "
+              f"{_f((acc or {}).get('rel_rms'), '.1e')} | | |",
+              f"| relative rms msleak - matvis, Stokes I (XX + YY) | "
+              f"{_f((acc or {}).get('stokes_i_rel_rms'), '.1e')} | | |",
+              f"| LOFAR larger / smaller NSIDE, wall | {_f(f.get('lofar_wall_ratio'), '.2f')} "
+              f"| | |"]
+    for x in f.get("goals", {}).values():
+        lines.append(f"| {x['what']} | {_f(x['value'], '.2f' if 'matvis' in x['what'] else '.0f')}"
+                     f" | {x['goal']} | {_verdict(x['pass'])} |")
+    load = f.get("load_avg_start_end")
+    if load:
+        lines += ["", f"Load average {load[0]:.1f} before and {load[1]:.1f} after the timed "
+                      "runs (wall times stretch when it exceeds the cores; CPU times less)."]
+    if f.get("quick"):
+        lines += ["", "A --quick run: small inputs, which say little about the full-scale "
+                      "goals (NSIDE 128 under 15 min and 8 GiB, NSIDE 256 under 1 h)."]
+    return lines
+
+
 def write_markdown(results: dict, path: Path) -> None:
     m = results["machine"]
     la0, la1 = m.get("load_avg_start"), m.get("load_avg_end")
@@ -300,6 +342,11 @@ def write_markdown(results: dict, path: Path) -> None:
     if results.get("degrid"):
         lines += ["", "## Degrid predict against the direct predict", "",
                   *_degrid_rows(results["degrid"])]
+    allsky = peers.get("allsky")
+    if allsky:
+        lines += ["", "## All-sky HEALPix predict, and against matvis", ""]
+        lines += (_allsky_rows(allsky["result"]) if allsky.get("result") else
+                  [f"FAILED (exit {allsky['exit']}): {allsky.get('stderr', '')[-300:]}"])
     sc = peers.get("scaling", {}).get("result")
     if sc:
         lines += ["", "## Scaling of predict and grid", "", *_scaling_rows(sc)]

@@ -143,13 +143,15 @@ def pyuvsim_sky_visibilities(obs: Observation, beam, sky) -> np.ndarray:
     return out
 
 
-def matvis_visibilities(obs: Observation, beam, ra, dec, flux) -> np.ndarray:
+def matvis_visibilities(obs: Observation, beam, ra, dec, flux,
+                        frame: str = "j2000") -> np.ndarray:
     """matvis's visibilities of unpolarized point sources, phased to the phase centre.
 
     Parameters
     ----------
     beam : pyuvdata UVBeam or AnalyticBeam (E-field), the same for every antenna
-    ra, dec : (nsrc,) J2000, rad (given to matvis as ICRS, which it requires)
+    ra, dec : (nsrc,) rad, in ``frame``: "j2000" (FK5, converted to ICRS, which matvis
+        requires) or "icrs" (given as they are, e.g. HEALPix pixel centres)
     flux : (nsrc, nchan) Stokes I, Jy
 
     Returns
@@ -160,10 +162,16 @@ def matvis_visibilities(obs: Observation, beam, ra, dec, flux) -> np.ndarray:
     """
     from matvis import simulate_vis
 
-    icrs = j2000(ra, dec).icrs
+    if frame == "icrs":
+        ra_icrs, dec_icrs = np.asarray(ra, float), np.asarray(dec, float)
+    elif frame == "j2000":
+        icrs = j2000(ra, dec).icrs
+        ra_icrs, dec_icrs = icrs.ra.rad, icrs.dec.rad
+    else:
+        raise ValueError(f"frame {frame!r} is not j2000 or icrs")
     nant, ntime, nchan = len(obs.enu), len(obs.times), len(obs.freqs)
     vis = simulate_vis(ants={i: obs.enu[i] for i in range(nant)}, fluxes=flux,
-                       ra=icrs.ra.rad, dec=icrs.dec.rad, freqs=obs.freqs,
+                       ra=ra_icrs, dec=dec_icrs, freqs=obs.freqs,
                        times=astropy_time(obs.times), beams=[beam],
                        telescope_loc=obs.location, polarized=True, precision=2)
     vis = vis.reshape(nchan, ntime, nant, nant, 2, 2).transpose(1, 2, 3, 0, 4, 5)
@@ -206,6 +214,20 @@ def mirrored_azimuth(beam):
     out = copy.copy(beam)
     out.__class__ = Mirrored
     return out
+
+
+def hera_beam():
+    """pyuvsim's HERA_NicCST.beamfits, read as msleak reads it (no mount type in the file:
+    pyuvdata assumes a fixed mount, as for HERA)."""
+    import warnings
+
+    from pyuvdata import UVBeam
+
+    from msleak.io.uvbeam import default_beam_file
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="The mount_type parameter must be set")
+        return UVBeam.from_file(str(default_beam_file()))
 
 
 def zenith_amplitude(beam) -> np.ndarray:

@@ -15,8 +15,6 @@ seen from the array centre (docs/predict.md); the HERA dish barely sees the hori
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 
@@ -54,16 +52,6 @@ def _stokes(nfreq: int) -> np.ndarray:
     return stokes
 
 
-def _hera_beam():
-    from pyuvdata import UVBeam
-
-    from msleak.io.uvbeam import default_beam_file
-
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="The mount_type parameter must be set")
-        return UVBeam.from_file(str(default_beam_file()))
-
-
 def test_healpix_sky_equals_pyuvsim(hera):
     import astropy.units as u
     from pyradiosky import SkyModel
@@ -75,7 +63,7 @@ def test_healpix_sky_equals_pyuvsim(hera):
                      stokes=stokes)
     vis = predict(str(ms), sky, column=None, beam="uvbeam", centre_correction=False,
                   double=True, scheduler="sync")
-    beam = _hera_beam()
+    beam = ps.hera_beam()
     right, wrong = (ps.AZIMUTH_HANDLING[name](beam)
                     for name in ps.geometry_verdict(ps.short_dipole_errors()))
     peer_sky = SkyModel(nside=NSIDE, hpx_inds=np.arange(npix), hpx_order="ring", frame="icrs",

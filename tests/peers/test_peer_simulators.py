@@ -10,8 +10,6 @@ is in docs/conventions.md, "Peer simulators (matvis, pyuvsim)".
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 
@@ -92,18 +90,6 @@ def _worst(vis, other) -> dict:
             for k, c in enumerate(vis.corr.values)}
 
 
-def _hera_beam():
-    """pyuvsim's HERA_NicCST.beamfits, read as msleak reads it (no mount type in the file:
-    pyuvdata assumes a fixed mount, as for HERA)."""
-    from pyuvdata import UVBeam
-
-    from msleak.io.uvbeam import default_beam_file
-
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="The mount_type parameter must be set")
-        return UVBeam.from_file(str(default_beam_file()))
-
-
 #: the azimuth handling, Q/U signs and geometry check of pyuvsim moved to peer_sim.py,
 #: shared with tests/peers/test_peer_healpix.py
 AZIMUTH_HANDLING = ps.AZIMUTH_HANDLING
@@ -130,7 +116,7 @@ def test_hera_unpolarized_equals_matvis_and_pyuvsim(hera):
     ms, obs = hera
     ra, dec, stokes = _sky(obs, polarized=False)
     vis = _msleak(ms, obs, ra, dec, stokes, "uvbeam")
-    beam = _hera_beam()
+    beam = ps.hera_beam()
     # msleak divides the file by its zenith amplitude (docs/hera.md); matvis uses the file
     # as it is, pyuvsim divides each frequency by its peak; both halve Stokes I per feed
     zenith = ps.zenith_amplitude(beam)
@@ -149,7 +135,7 @@ def test_hera_polarized_equals_pyuvsim(hera, azimuth):
     ms, obs = hera
     ra, dec, stokes = _sky(obs, polarized=True, seed=2)
     vis = _msleak(ms, obs, ra, dec, stokes, "uvbeam")
-    beam = _hera_beam()
+    beam = ps.hera_beam()
     scale = (2 * (ps.peak_amplitude(beam) / ps.zenith_amplitude(beam)) ** 2)[None, :, None]
     # the beam's azimuth component as the geometry test finds pyuvsim needs it (mirrored
     # for pyuvsim 1.4.2); pyradiosky's V is minus msleak's
