@@ -73,6 +73,11 @@ class Setup:
         scale = cell / _STUDY_CELL
         return cell, (_STUDY_UV[0] * scale, _STUDY_UV[1] * scale)
 
+    def grid_args(self, nchan: int) -> list:
+        """``msleak grid``'s --cell and --uv-range of :meth:`uv_grid`."""
+        cell, uv_range = self.uv_grid(nchan)
+        return ["--cell", f"{cell:.6g}", "--uv-range", f"{uv_range[0]:.6g},{uv_range[1]:.6g}"]
+
 
 #: LOFAR observes its 3C196 window, the southern arrays EoR0 near their zenith; HERA's
 #: band starts at 135 MHz, earlier if needed to end inside its beam file (100-145 MHz),
@@ -196,9 +201,7 @@ def _telescope_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
                    "--chan-width", _CHAN_WIDTH,
                    "--stations", ",".join(names), "--overwrite"], outputs=[ms])]
     predict = ["predict", ms, "--beam", setup.beam, *predict_precision(cfg.double)]
-    cell, uv_range = setup.uv_grid(cfg.nchan)
-    grid = ["grid", ms, "--cell", f"{cell:.6g}", "--uv-range",
-            f"{uv_range[0]:.6g},{uv_range[1]:.6g}", "--overwrite"]
+    grid = ["grid", ms, *setup.grid_args(cfg.nchan), "--overwrite"]
     for seed in cfg.realisations:
         predict += ["--sky", cubes[seed, setup.freq_min(cfg.nchan)], "--column",
                     f"MODEL_S{seed}"]
@@ -228,15 +231,13 @@ def extent_run(cfg: ForecastConfig, tel: str) -> ExtentRun:
     """The extent runs of ``tel``: its MS, beam, grid and the all-sky sky of its band."""
     setup = SETUPS[tel]
     freq = setup.freq_min(cfg.nchan)
-    cell, uv_range = setup.uv_grid(cfg.nchan)
     sky = Path(cfg.outdir) / "sky"
     return ExtentRun(
         name=tel, label=setup.label, ms=Path(cfg.outdir) / tel / f"{tel}.ms",
         outdir=Path(cfg.outdir) / tel,
         predict=["--beam", setup.beam, *predict_precision(cfg.double)],
-        grid=["--cell", f"{cell:.6g}", "--uv-range", f"{uv_range[0]:.6g},{uv_range[1]:.6g}"],
-        ps=[], skies={s: sky / f"allsky_s{s}_{freq / 1e6:g}MHz.skyh5"
-                      for s in cfg.realisations},
+        grid=setup.grid_args(cfg.nchan), ps=[],
+        skies={s: sky / f"allsky_s{s}_{freq / 1e6:g}MHz.skyh5" for s in cfg.realisations},
         extents=cfg.extents, after=f"grid-{tel}", field_name=setup.label)
 
 
@@ -256,12 +257,11 @@ def _budget_steps(cfg: ForecastConfig, tel: str, cubes: dict) -> list[Step]:
     (:func:`msleak.study.pipeline.budget_steps`)."""
     setup, seed = SETUPS[tel], cfg.seed
     tdir = Path(cfg.outdir) / tel
-    cell, uv_range = setup.uv_grid(cfg.nchan)
     budget = Budget(ms=tdir / f"{tel}.ms", outdir=tdir, sky=cubes[seed, setup.freq_min(
         cfg.nchan)], label=f"s{seed}", name=tel, predict=["--beam", setup.beam,
                                                           *predict_precision(cfg.double)],
-        grid=["--cell", f"{cell:.6g}", "--uv-range", f"{uv_range[0]:.6g},{uv_range[1]:.6g}"],
-        ps=[], ideal_column=f"MODEL_S{seed}", after=(f"grid-{tel}", f"predict-{tel}"),
+        grid=setup.grid_args(cfg.nchan), ps=[], ideal_column=f"MODEL_S{seed}",
+        after=(f"grid-{tel}", f"predict-{tel}"),
         field_name=setup.label, leakage=("--no-pdf",))
     instrument = cfg.instrument_of(tel)
     return budget_steps(budget, instrument.runs(), instrument.noise_sefd)
