@@ -41,6 +41,16 @@ class Observation:
     enu: np.ndarray
 
 
+def small_hera(path) -> tuple:
+    """A small HERA MS (4 dishes, 2 channels of 15 MHz from 100 MHz, 2 x 600 s) and its
+    :class:`Observation`: the all-sky peer comparisons' observation."""
+    from msleak.verbs.simulate import simulate
+
+    ms = simulate(path, telescope="hera", stations="HH65,HH66,HH67,HH82", nchan=2,
+                  freq_min=100e6, chan_width=15e6, duration=1200 / 3600, interval=600.0)
+    return ms, read_observation(ms)
+
+
 def read_observation(ms) -> Observation:
     """Antennas, times, channels and phase centre of ``ms`` (one field, one window)."""
     import astropy.units as u

@@ -26,7 +26,6 @@ require("pyradiosky", "pyradiosky holds pyuvsim's HEALPix sky (msleak[healpix])"
 import peer_sim as ps  # noqa: E402
 from msleak.sky.healpix import HealpixSky  # noqa: E402
 from msleak.verbs.predict import predict  # noqa: E402
-from msleak.verbs.simulate import simulate  # noqa: E402
 
 #: as tests/peers/test_peer_simulators.py; measured here 1.6e-4 (1.7e-4 at NSIDE 16), with
 #: the other azimuth handling 0.09 to 0.32
@@ -36,10 +35,7 @@ NSIDE = 8
 
 @pytest.fixture(scope="module")
 def hera(tmp_path_factory):
-    ms = simulate(tmp_path_factory.mktemp("hera") / "hera.ms", telescope="hera",
-                  stations="HH65,HH66,HH67,HH82", nchan=2, freq_min=100e6, chan_width=15e6,
-                  duration=1200 / 3600, interval=600.0)
-    return ms, ps.read_observation(ms)
+    return ps.small_hera(tmp_path_factory.mktemp("hera") / "hera.ms")
 
 
 def _stokes(nfreq: int) -> np.ndarray:

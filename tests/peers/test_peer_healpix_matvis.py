@@ -27,7 +27,6 @@ require("astropy_healpix", "astropy-healpix places the pixels (msleak[healpix])"
 import peer_sim as ps  # noqa: E402
 from msleak.sky.healpix import HealpixSky  # noqa: E402
 from msleak.verbs.predict import predict  # noqa: E402
-from msleak.verbs.simulate import simulate  # noqa: E402
 
 #: as tests/peers/test_peer_simulators.py (what separates msleak from matvis is listed
 #: there: aberration, astropy against casacore directions, one beam frame for the array);
@@ -42,10 +41,7 @@ FAR_DEG = 30.0
 
 @pytest.fixture(scope="module")
 def hera(tmp_path_factory):
-    ms = simulate(tmp_path_factory.mktemp("hera") / "hera.ms", telescope="hera",
-                  stations="HH65,HH66,HH67,HH82", nchan=2, freq_min=100e6, chan_width=15e6,
-                  duration=1200 / 3600, interval=600.0)
-    return ms, ps.read_observation(ms)
+    return ps.small_hera(tmp_path_factory.mktemp("hera") / "hera.ms")
 
 
 def _sky(freqs: np.ndarray) -> HealpixSky:
