@@ -28,9 +28,13 @@ def noise_sigma_per_cell(ideal: xr.Dataset, noisy: Sequence[xr.Dataset]) -> np.n
     of ``ideal`` (``power3d`` units); cells are matched by their (u, v) (``u_cell``,
     ``v_cell``; an even/odd cube keeps only the cells both halves fill), NaN where no noisy
     spectrum has the cell."""
+    return _sigma(ideal, voxel_power(ideal, "noiseless PS")[0][0], noisy)
+
+
+def _sigma(ideal: xr.Dataset, p_i0: np.ndarray, noisy: Sequence[xr.Dataset]) -> np.ndarray:
+    """:func:`noise_sigma_per_cell` with the noiseless P_I (delay, cell) ``p_i0`` given."""
     if not noisy:
         raise InputError("detectable leakage needs at least one noisy power spectrum")
-    p_i0 = voxel_power(ideal, "noiseless PS")[0][0]
     cells0 = _cells(ideal, p_i0.shape[1])
     total = np.zeros(p_i0.shape[1])
     count = np.zeros(p_i0.shape[1])
@@ -42,7 +46,7 @@ def noise_sigma_per_cell(ideal: xr.Dataset, noisy: Sequence[xr.Dataset]) -> np.n
                              f"within the noiseless one's {p_i0.shape}: grid both alike")
         delta = p_i - p_i0[:, index]
         good = np.isfinite(delta)
-        np.add.at(total, index, np.where(good, delta, 0.0).__pow__(2).sum(axis=0))
+        np.add.at(total, index, (np.where(good, delta, 0.0) ** 2).sum(axis=0))
         np.add.at(count, index, good.sum(axis=0))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.sqrt(np.where(count > 0, total / count, np.nan))
@@ -64,8 +68,8 @@ def detectable_leakage(ideal: xr.Dataset, noisy: Sequence[xr.Dataset],
     (-u, -tau) of every cell and delay)."""
     if not nsigma > 0:
         raise InputError(f"nsigma must be positive, got {nsigma}", param="nsigma")
-    sigma = noise_sigma_per_cell(ideal, noisy)
-    p_p = voxel_power(ideal, "noiseless PS")[1]
+    p_i, p_p = voxel_power(ideal, "noiseless PS")
+    sigma = _sigma(ideal, p_i[0], noisy)
     with np.errstate(divide="ignore", invalid="ignore"):
         l_min = 100.0 * np.sqrt(nsigma * sigma[None, None, :] / p_p)
     return l_min[(p_p > 0) & np.isfinite(l_min)]

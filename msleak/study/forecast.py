@@ -152,9 +152,9 @@ class ForecastConfig:
         if unknown:
             raise InputError(f"noise is given for {unknown[0]}, which the forecast does not "
                              f"run ({', '.join(self.telescopes)})", param="noise")
-        for value in sefd.values():
-            replace(self.instrument, noise_sefd=value).check()
         self.instrument.check()
+        for value in sefd.values():                  # each telescope's SEFD alone
+            Instrument(noise_sefd=value).check()
 
     @property
     def realisations(self) -> list[int]:
