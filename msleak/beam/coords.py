@@ -17,6 +17,7 @@ slot inside its evaluation, and the map it fits needs exact conversions at that 
 
 from __future__ import annotations
 
+import functools
 import logging
 
 import numpy as np
@@ -75,6 +76,12 @@ def clip_pole(dec, eps: float = POLE_EPS_RAD) -> np.ndarray:
     return np.clip(np.asarray(dec, dtype=float), -np.pi / 2 + eps, np.pi / 2 - eps)
 
 
+#: a direction this close (rad) outside a map's region still counts as covered: a pole
+#: within it is mapped like the directions about it (which :func:`clip_pole` puts 1e-8
+#: rad from the pole), so that their (North, East) basis does not rest on the difference
+#: between the map and an exact conversion (~1e-7 rad)
+_COVER_MARGIN_RAD = 1e-6
+
 #: The J2000 pole as a unit vector.
 _J2000_POLE = np.array([0.0, 0.0, 1.0])
 
@@ -114,7 +121,7 @@ class ItrfMap:
     def covers(self, unit_j2000: np.ndarray) -> bool:
         """Whether a direction lies inside the region the map was fitted over."""
         cosang = float(np.clip(np.dot(unit_j2000, self.centre), -1, 1))
-        return np.arccos(cosang) <= self.radius + 1e-9
+        return np.arccos(cosang) <= self.radius + _COVER_MARGIN_RAD
 
     def pole(self) -> np.ndarray:
         """ITRF unit vector (3,) of the J2000 pole: through the map when the pole is inside
@@ -171,26 +178,50 @@ def itrf_map(time_mjd_s: float, unit_j2000: np.ndarray, *, min_radius_rad: float
     u = np.asarray(unit_j2000, dtype=float).reshape(-1, 3)
     mean = u.mean(axis=0)
     norm = np.linalg.norm(mean)
-    if norm < 0.5:
-        # very wide set of directions: anchors over the whole sphere
-        k = np.arange(48) + 0.5
-        dec = np.arcsin(1 - 2 * k / 48)
-        ra = np.pi * (1 + 5 ** 0.5) * k
-        anchors = radec_to_unit(ra, dec)
-        centre, radius = np.array([0.0, 0.0, 1.0]), np.pi
-        log.debug("J2000->ITRF map fitted over the whole sky (accuracy ~1e-6 rad)")
-    else:
-        centre = mean / norm
-        radius = max(float(np.arccos(np.clip(u @ centre, -1, 1)).max()), min_radius_rad)
-        e, n = _tangent_basis(centre)
-        side = 4 if radius < np.radians(20) else 6
-        half = np.tan(min(radius, np.radians(80)))
-        g = np.linspace(-half, half, side)
-        gl, gm = np.meshgrid(g, g)
-        anchors = centre + gl.reshape(-1, 1) * e + gm.reshape(-1, 1) * n
-        anchors = np.vstack([anchors, centre])
-        anchors /= np.linalg.norm(anchors, axis=1, keepdims=True)
-        radius = float(np.arccos(np.clip(anchors @ centre, -1, 1)).max())
+    centre = mean / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+    if norm < 0.5 or np.arccos(np.clip(u @ centre, -1, 1)).max() > _CAP_MAX_RAD:
+        # very wide set of directions: one map over the whole sphere per time and position
+        return _sphere_map(float(time_mjd_s), None if position_itrf is None else
+                           tuple(float(x) for x in np.ravel(position_itrf)))
+    return _fit_map(time_mjd_s, u, centre, min_radius_rad, position_itrf)
+
+
+#: widest cap (rad) :func:`itrf_map` fits on its own: its anchors reach 80 deg from the
+#: centre along the axes, so directions beyond would be extrapolated (errors ~1e-6 rad at
+#: 80 deg, growing beyond); wider sets take the whole-sphere map (5e-7 rad)
+_CAP_MAX_RAD = np.radians(80.0)
+
+
+@functools.lru_cache(maxsize=64)
+def _sphere_map(time_mjd_s: float, position_itrf: tuple | None) -> ItrfMap:
+    """:func:`itrf_map` fitted over the whole sphere (48 anchors on a Fibonacci lattice;
+    about 5e-7 rad from casacore), kept for the blocks of directions of the same time."""
+    k = np.arange(48) + 0.5
+    anchors = radec_to_unit(np.pi * (1 + 5 ** 0.5) * k, np.arcsin(1 - 2 * k / 48))
+    log.debug("J2000->ITRF map fitted over the whole sky (accuracy ~1e-6 rad)")
+    return _solved(time_mjd_s, anchors, np.array([0.0, 0.0, 1.0]), np.pi,
+                   None if position_itrf is None else np.asarray(position_itrf))
+
+
+def _fit_map(time_mjd_s: float, u: np.ndarray, centre: np.ndarray, min_radius_rad: float,
+             position_itrf) -> ItrfMap:
+    """:func:`itrf_map` fitted over the cap about ``centre`` that holds ``u``."""
+    radius = max(float(np.arccos(np.clip(u @ centre, -1, 1)).max()), min_radius_rad)
+    e, n = _tangent_basis(centre)
+    side = 4 if radius < np.radians(20) else 6
+    half = np.tan(min(radius, _CAP_MAX_RAD))
+    g = np.linspace(-half, half, side)
+    gl, gm = np.meshgrid(g, g)
+    anchors = centre + gl.reshape(-1, 1) * e + gm.reshape(-1, 1) * n
+    anchors = np.vstack([anchors, centre])
+    anchors /= np.linalg.norm(anchors, axis=1, keepdims=True)
+    radius = float(np.arccos(np.clip(anchors @ centre, -1, 1)).max())
+    return _solved(time_mjd_s, anchors, centre, radius, position_itrf)
+
+
+def _solved(time_mjd_s: float, anchors: np.ndarray, centre: np.ndarray, radius: float,
+            position_itrf) -> ItrfMap:
+    """The map fitted to casacore's conversions of ``anchors``."""
     ra, dec = unit_to_radec(anchors)
     images = exact_j2000_to_itrf(time_mjd_s, ra, dec, position_itrf)
     matrix, offset = _solve_map(anchors, images)

@@ -191,15 +191,24 @@ class Runner:
             batch = list(itertools.islice(it, window))
             if not batch:
                 return
+            threads = self._batch_threads(len(batch))
             if len(batch) == 1:  # no point in a graph for one task
-                results = [_run_task(func, batch[0], shared, self.task_threads)]
+                results = [_run_task(func, batch[0], shared, threads)]
             else:
-                tasks = [dask.delayed(_run_task, pure=False)(func, job, shared, self.task_threads)
+                tasks = [dask.delayed(_run_task, pure=False)(func, job, shared, threads)
                          for job in batch]
                 results = dask.compute(*tasks, scheduler=self.kind, pool=self.pool,
                                        num_workers=self.workers, optimize_graph=False)
             yield from zip(batch, results)
             del results  # not kept while the next batch runs
+
+    def _batch_threads(self, ntask: int) -> Any:
+        """Kernel threads of each of ``ntask`` local tasks run together: a batch smaller
+        than :attr:`workers` (a run of one chunk, the last chunks) shares the idle tasks'
+        threads among its own, so that no core waits."""
+        if not isinstance(self.task_threads, int) or ntask >= self.workers:
+            return self.task_threads
+        return max(1, self.task_threads * self.workers // max(1, ntask))
 
     def _map_distributed(self, func, jobs, shared, window):
         from distributed import KilledWorker

@@ -300,23 +300,37 @@ def _own_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
                 stations: np.ndarray, centre_correction: bool, dtype, view=None) -> Iterator:
     """:func:`_pixel_blocks`, or for an all-sky sky with its ``view`` (:func:`_visible`):
     per block of times, the directions above the horizon at some time of the block, in
-    blocks within :data:`PIXEL_BEAM_BYTES`, their beam zero at the times they are below."""
+    blocks within :data:`PIXEL_BEAM_BYTES` (twice the beam the previous block returned,
+    for the masked copy: a factored beam takes far less than full Jones matrices), their
+    beam zero at the times they are below."""
     if view is None:
         yield from _pixel_blocks(sky, beam_model, fmeta, times, freq, stations,
                                  centre_correction, dtype)
         return
+    entry = _PIXEL_BEAM_ENTRY * stations.size    # bytes per (time, channel, direction)
     for t0, t1, index, mask in view:
-        size = direct_block(stations.size, freq.size * (t1 - t0))
-        for i in range(0, index.size, size):
+        i = 0
+        while i < index.size:
+            size = max(1, int(PIXEL_BEAM_BYTES // (entry * freq.size * (t1 - t0))))
             rows = index[i:i + size]
             part = replace(sky, ra=sky.ra[rows], dec=sky.dec[rows], lmn1=sky.lmn1[rows],
                            iquv=sky.iquv[rows], w=sky.w[rows], sign=sky.sign[rows],
                            horizon=None)
             jones, left = _beam(beam_model, part, fmeta, times[t0:t1], freq, stations,
                                 centre_correction, dtype)
+            if jones is not None:   # the next blocks sized by what this one took
+                entry = max(1.0, 2 * _nbytes(jones) / (freq.size * (t1 - t0) * rows.size))
             if mask is not None:
                 jones = mask_jones(jones, mask[:, i:i + size], stations.size, dtype)
             yield t0, t1, part, jones, left
+            i += rows.size
+
+
+def _nbytes(jones) -> int:
+    """Bytes of a beam from :func:`_beam` (full Jones or :class:`JonesFactors`)."""
+    if isinstance(jones, JonesFactors):
+        return int(jones.scalar.nbytes + jones.element.nbytes)
+    return int(jones.nbytes)
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

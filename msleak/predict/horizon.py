@@ -87,7 +87,8 @@ def visible_blocks(horizon: Horizon, times: np.ndarray, ra: np.ndarray, dec: np.
 def mask_jones(jones, mask: np.ndarray, nstation: int, dtype):
     """The beam ``jones`` (full (nst|1, nt, nchan|1, ndir, 2, 2), :class:`JonesFactors`, or
     None for no beam) with the (time, direction) pairs where ``mask`` (nt, ndir) is False
-    set to exactly zero (without a beam: the identity where True, zero elsewhere)."""
+    set to exactly zero (without a beam: the identity where True, zero elsewhere). The
+    arrays of ``jones`` are zeroed in place where they cover every time."""
     mask = np.asarray(mask, dtype=bool)
     if jones is None:
         eye = np.zeros((1, 1, 1, mask.shape[1], 2, 2), dtype=dtype)
@@ -95,12 +96,18 @@ def mask_jones(jones, mask: np.ndarray, nstation: int, dtype):
         return JonesFactors(mask[None, :, None, :].astype(dtype), eye,
                             np.zeros(nstation, dtype=np.int64))
     if isinstance(jones, JonesFactors):
-        scalar = np.broadcast_to(jones.scalar, (jones.scalar.shape[0], mask.shape[0])
-                                 + jones.scalar.shape[2:])
         element = jones.element
         if not np.all(np.isfinite(element)):     # 0 x inf below the horizon would be NaN
             element = np.nan_to_num(element, nan=0.0, posinf=0.0, neginf=0.0)
-        return JonesFactors(np.where(mask[None, :, None, :], scalar, 0).astype(
-            jones.scalar.dtype, copy=False), element, jones.group)
-    return np.where(mask[None, :, None, :, None, None], jones, 0).astype(jones.dtype,
-                                                                         copy=False)
+        return JonesFactors(_zeroed(jones.scalar, mask[None, :, None, :]), element,
+                            jones.group)
+    return _zeroed(jones, mask[None, :, None, :, None, None])
+
+
+def _zeroed(values: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``values`` set to exactly zero where ``keep`` (broadcast against it; time axis 1)
+    is False: in place when ``values`` has every time and may be written, else a copy."""
+    if values.shape[1] == keep.shape[1] and values.flags.writeable:
+        np.copyto(values, 0, where=~keep)
+        return values
+    return np.where(keep, values, 0).astype(values.dtype, copy=False)

@@ -87,6 +87,40 @@ def test_fitted_itrf_map_matches_casacore():
         assert np.linalg.norm(fitted - exact, axis=1).max() < 1e-8
 
 
+def _arc_and_pole():
+    """21 directions at dec -15 deg over 90 deg of RA, and the NCP: their mean is 0.76
+    long, so that one cap about it would have to reach 98 deg."""
+    ra = np.append(np.radians(np.linspace(0, 90, 21)), 0.0)
+    return ra, np.append(np.full(21, np.radians(-15)), np.pi / 2)
+
+
+def test_itrf_map_of_wide_sets_covers_them_and_the_pole():
+    """Directions spread over more than 80 deg from their mean (the widest cap fitted on
+    its own) take the whole-sphere map, within 1e-6 rad of casacore everywhere; a set
+    holding the pole maps the pole through the same map as the directions beside it."""
+    ra, dec = _arc_and_pole()
+    u = radec_to_unit(ra, dec - np.append(np.zeros(21), 1e-8))
+    t = 4.86234e9
+    fitted = itrf_map(t, u)
+    assert fitted.covers(np.array([0.0, 0.0, 1.0]))
+    exact = exact_j2000_to_itrf(t, ra, dec)
+    assert np.linalg.norm(fitted(u) - exact, axis=1).max() < 1e-6
+    # the pole's image and the direction 1e-8 rad beside it: 1e-8 rad apart, as on the sky
+    gap = np.linalg.norm(fitted.pole() - fitted(u[-1]))
+    assert gap == pytest.approx(1e-8, rel=1e-3)
+
+
+def test_ncp_beam_at_the_pole_does_not_depend_on_the_other_directions(beams):
+    """The beam towards the NCP (its sky basis defined 1e-8 rad from the pole) is the same
+    evaluated alone or with directions far from it: the centre correction of each block
+    of an all-sky sky rests on it."""
+    fast, _ = beams["ncp"]
+    times, freq = [4.86234e9], [150e6]
+    alone = fast.jones(times, freq, [0.0], [np.pi / 2])[..., 0, :, :]
+    with_arc = fast.jones(times, freq, *_arc_and_pole())[..., -1, :, :]
+    assert np.abs(with_arc - alone).max() < 1e-6 * np.abs(alone).max()
+
+
 @pytest.mark.parametrize("field", ["3c196", "ncp"])
 def test_jones_factors_multiply_to_the_jones_matrices(beams, lofar_mss, field):
     """Every HBA field has the one element response: J_p = S_p E, as :meth:`jones` gives."""
