@@ -43,7 +43,8 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
                 subgrid_dirs: int = 0, tasks: int = 1) -> tuple[int, int]:
     """Times and channels per chunk so that the working set stays under ``memory_limit``.
 
-    All channels and as many times as fit; with ``long_times`` (a degridded sky, whose
+    All channels and as many times as fit, in chunks of equal length and at least
+    ``tasks`` of them while times allow; with ``long_times`` (a degridded sky, whose
     w-layer FFTs are done once per chunk and channel) all times and as many channels as
     fit, but at least :data:`LONG_CHANNELS` channels (fewer times) while memory allows,
     since a beam model evaluates channels together more cheaply than one by one, and at
@@ -77,8 +78,16 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
             return most, min(nchan, units // most)
         return (units // least, least) if units >= least else (1, units)
     if units >= nchan:
-        return max(1, min(ntime, units // nchan)), nchan
+        return _balanced(ntime, max(1, min(ntime, units // nchan)), tasks), nchan
     return 1, units
+
+
+def _balanced(ntime: int, most: int, tasks: int) -> int:
+    """Times per chunk: chunks of equal length (within one time) of at most ``most``
+    times, and at least ``tasks`` of them while there are times enough, so that the tasks
+    run at once share the work (not 29 times and 1)."""
+    nchunk = max(-(-ntime // most), min(max(1, tasks), ntime))
+    return -(-ntime // nchunk)
 
 
 def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,

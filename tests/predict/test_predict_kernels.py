@@ -261,6 +261,24 @@ def test_plan_chunks_respects_budget():
     assert plan_chunks(4, 4, 6, 3, 15, 1.0, 8, False) == (1, 1)
 
 
+def test_plan_chunks_are_balanced_and_shared_among_tasks():
+    """All channels: as many times as fit, cut into chunks of equal length (within one
+    time), at least one per task while there are times enough; within the budget."""
+    per = 96**2 * 8 + 1176 * 4 * 24 + 48 * 2501 * 4 * 40       # per (time, channel)
+    fit = 29 * 50 * per                                        # 29 times fit
+    assert plan_chunks(30, 50, 48, 2500, 1176, fit, 8, True) == (15, 50)
+    assert plan_chunks(30, 50, 48, 2500, 1176, fit, 8, True, tasks=4) == (8, 50)
+    assert plan_chunks(30, 50, 48, 2500, 1176, 100 * fit, 8, True) == (30, 50)
+    assert plan_chunks(30, 50, 48, 2500, 1176, 100 * fit, 8, True, tasks=2) == (15, 50)
+    assert plan_chunks(1, 50, 48, 2500, 1176, 100 * fit, 8, True, tasks=2) == (1, 50)
+    for ntime in range(1, 40):
+        for most in (1, 7, 29):
+            nt, _ = plan_chunks(ntime, 50, 48, 2500, 1176, most * 50 * per, 8, True, tasks=2)
+            nchunk = -(-ntime // nt)
+            assert nt <= most and nchunk * nt - ntime < nchunk     # equal within one time
+            assert nchunk >= min(2, ntime)
+
+
 def test_plan_chunks_long_times_for_degridding():
     """A degridded sky: all times (or ntime / tasks) when LONG_CHANNELS channels fit with
     them, else fewer times with LONG_CHANNELS channels; always within the budget."""
