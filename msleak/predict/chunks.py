@@ -40,7 +40,8 @@ LONG_CHANNELS = 8
 def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time: int,
                 memory_limit: float, itemsize: int, beam: bool,
                 fixed_bytes: float = 0.0, nsky: int = 1, long_times: bool = False,
-                subgrid_dirs: int = 0, tasks: int = 1) -> tuple[int, int]:
+                subgrid_dirs: int = 0, tasks: int = 1,
+                whole_channels: bool = False) -> tuple[int, int]:
     """Times and channels per chunk so that the working set stays under ``memory_limit``.
 
     All channels and as many times as fit, in chunks of equal length and at least
@@ -49,6 +50,9 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
     fit, but at least :data:`LONG_CHANNELS` channels (fewer times) while memory allows,
     since a beam model evaluates channels together more cheaply than one by one, and at
     most ntime / ``tasks`` times, so that the ``tasks`` chunks run at once all have work.
+    With ``whole_channels`` (an all-sky sky, whose beam work per direction the channels of
+    a chunk share) every chunk has every channel, one time at least, even beyond the budget
+    (with a warning).
 
     The per-(time, channel) estimate counts the beam Jones matrices towards the ``ndir``
     directions of all skies (complex128 as the beam models compute them, the cast copy
@@ -66,6 +70,11 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
         per_unit += nstation * subgrid_dirs * 80  # degrid's complex128 Jones, built per time
     avail = memory_limit - fixed_bytes
     units = int(avail // per_unit) if avail > 0 else 0
+    if whole_channels and units < nchan:
+        log.warning("memory limit %.0f MB is too small for one time slot of every channel "
+                    "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
+                    (nchan * per_unit + fixed_bytes) / 2**20)
+        return 1, nchan
     if units < 1:
         log.warning("memory limit %.0f MB is too small for one time slot and channel "
                     "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
@@ -93,14 +102,15 @@ def _balanced(ntime: int, most: int, tasks: int) -> int:
 def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
                   stations: np.ndarray, fmeta, tidx: np.ndarray, p: np.ndarray, q: np.ndarray,
                   uvw: np.ndarray, centre_correction: bool, dtype: np.dtype,
-                  nc_chunk: int, timings: dict, active: Sequence[int] = (0,)
-                  ) -> tuple[list, int]:
+                  nc_chunk: int, timings: dict, active: Sequence[int] = (0,),
+                  block_bytes: float = PIXEL_BEAM_BYTES) -> tuple[list, int]:
     """Visibilities (nrow, nchan, 4) of one time chunk (linear feeds) for each sky
     ``comp.skies[k]``, k in ``active``, and the number of rows computed from their own UVW
     (not antenna-based within the tolerance).
 
-    The beam is evaluated once towards every direction of ``comp``. Adds the stage wall
-    times to ``timings``.
+    The beam is evaluated once towards every direction of ``comp``; skies summed pixel by
+    pixel (all-sky, and pixel skies summed directly) take it block by block within
+    ``block_bytes``. Adds the stage wall times to ``timings``.
     """
     tick = _time.perf_counter()
     skies = [(comp.index[k], comp.skies[k]) for k in active]
@@ -120,7 +130,7 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
     use_degrid = [g is not None and worth_degridding(sky.grid, g, xyz, *rows, freq)
                   for g, (_, sky) in zip(geometry, skies)]
     direct = [(index, sky) for index, sky in skies if not sky.own]
-    views = [_visible(sky, times, stations, freq) for _, sky in skies]
+    views = [_visible(sky, times, stations, freq, block_bytes) for _, sky in skies]
     outs = [np.empty((tidx.size, freq.size, 4), dtype=dtype) for _ in skies]
     for c0 in range(0, freq.size, nc_chunk):
         c1 = min(freq.size, c0 + nc_chunk)
@@ -142,18 +152,19 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
             if view is not None and not off.all():
                 out[fast, c0:c1] = _pixel_direct(sky, beam_model, fmeta, times,
                                                  slice(c0, c1), freq, stations, xyz, rows,
-                                                 centre_correction, dtype, view)
+                                                 centre_correction, dtype, view, block_bytes)
         tick = add_time(timings, "kernel", tick)
         for out, (_, sky), use, geom, close in zip(outs, skies, use_degrid, geometry, near):
             if sky.grid is not None and not off.all():
                 out[fast, c0:c1] = _pixel_sky(sky, geom if use else None, close, beam_model,
                                               fmeta, times, slice(c0, c1), freq, stations,
-                                              xyz, rows, centre_correction, dtype)
+                                              xyz, rows, centre_correction, dtype,
+                                              block_bytes)
         tick = add_time(timings, "degrid", tick)
         if off.any():
             _per_baseline(outs, skies, views, jones, left, np.flatnonzero(off),
                           (tidx, p, q, uvw), slice(c0, c1), beam_model, fmeta, times, freq,
-                          stations, centre_correction, dtype)
+                          stations, centre_correction, dtype, block_bytes)
             add_time(timings, "per_baseline", tick)
         del jones
     return outs, int(off.sum())
@@ -161,7 +172,7 @@ def predict_chunk(comp: SkySet, beam_model, times: np.ndarray, freq: np.ndarray,
 
 def _per_baseline(outs: list, skies: list, views: list, jones, left, rows_off: np.ndarray,
                   meta: tuple, channels: slice, beam_model, fmeta, times, freq, stations,
-                  centre_correction: bool, dtype) -> None:
+                  centre_correction: bool, dtype, block_bytes: float) -> None:
     """Fill the rows ``rows_off`` (not antenna-based) of every sky's ``outs`` on
     ``channels``, each from its own UVW (``meta``: tidx, p, q, uvw of all rows): the union
     skies with the chunk's beam ``jones`` and correction ``left``, the others (degridded,
@@ -176,7 +187,7 @@ def _per_baseline(outs: list, skies: list, views: list, jones, left, rows_off: n
         out[rows_off, channels] = 0
         for t0, t1, part, sky_jones, sky_left in _own_blocks(
                 sky, beam_model, fmeta, times, freq[channels], stations, centre_correction,
-                dtype, view):
+                dtype, view, block_bytes):
             sel = np.flatnonzero((tidx >= t0) & (tidx < t1))
             out[rows_off[sel], channels] += predict_rows(
                 _directions_jones(sky_jones, np.arange(part.ndir)), tidx[sel] - t0, p[sel],
@@ -214,7 +225,8 @@ def _geometry(grid, beam_model, times, freq, stations, centre_correction) -> tup
 
 def _pixel_sky(sky, geometry, near, beam_model, fmeta, times: np.ndarray,
                channels: slice, freq: np.ndarray, stations: np.ndarray, xyz: np.ndarray,
-               rows: tuple, centre_correction: bool, dtype) -> np.ndarray:
+               rows: tuple, centre_correction: bool, dtype,
+               block_bytes: float = PIXEL_BEAM_BYTES) -> np.ndarray:
     """Visibilities (nrow, nchan, 4) of the antenna-based ``rows`` (tidx, p, q) for a sky
     with a pixel grid, on ``freq[channels]``: degridded with ``geometry``, except the rows
     of the times ``near`` (bool, ntime, or None: no time), which, like every row when
@@ -223,7 +235,7 @@ def _pixel_sky(sky, geometry, near, beam_model, fmeta, times: np.ndarray,
     tidx, p, q = rows
     if not geometry:
         return _pixel_direct(sky, beam_model, fmeta, times, channels, freq, stations, xyz,
-                             rows, centre_correction, dtype)
+                             rows, centre_correction, dtype, None, block_bytes)
     if near is None:
         return degrid_visibilities(sky.grid, geometry, channels, beam_model, times,
                                    freq[channels], stations, xyz, *rows, centre_correction)
@@ -238,19 +250,22 @@ def _pixel_sky(sky, geometry, near, beam_model, fmeta, times: np.ndarray,
     renumber = np.cumsum(near) - 1
     out[close] = _pixel_direct(sky, beam_model, fmeta, times[keep], channels, freq,
                                stations, xyz[keep], (renumber[tidx[close]], p[close],
-                                                     q[close]), centre_correction, dtype)
+                                                     q[close]), centre_correction, dtype,
+                               None, block_bytes)
     return out
 
 
 def _pixel_direct(sky, beam_model, fmeta, times, channels, freq, stations, xyz, rows,
-                  centre_correction, dtype, view=None) -> np.ndarray:
+                  centre_correction, dtype, view=None,
+                  block_bytes: float = PIXEL_BEAM_BYTES) -> np.ndarray:
     """:func:`_pixel_sky`'s direct sum over every pixel of ``rows`` (tidx, p, q); with
     ``view`` (:func:`_visible`), an all-sky sky's sum over the pixels above its horizon."""
     tidx, p, q = rows
     out = np.zeros((tidx.size, freq[channels].size, 4), dtype=dtype)
     for t0, t1, part, jones, left in _own_blocks(sky, beam_model, fmeta, times,
                                                  freq[channels], stations,
-                                                 centre_correction, dtype, view):
+                                                 centre_correction, dtype, view,
+                                                 block_bytes):
         grams = kernels.predict_grams(jones, xyz[t0:t1], part.lmn1, freq[channels],
                                       [(np.arange(part.ndir), part.w[:, channels],
                                         part.sign[:, channels])], dtype=dtype)
@@ -265,26 +280,27 @@ def _pixel_direct(sky, beam_model, fmeta, times, channels, freq, stations, xyz, 
 _PIXEL_BEAM_ENTRY = 3 * 16 * 4
 
 
-def direct_block(nstation: int, nchan: int) -> int:
-    """Pixels whose beam for one time fits :data:`PIXEL_BEAM_BYTES` (at least 1)."""
-    return max(1, int(PIXEL_BEAM_BYTES // (_PIXEL_BEAM_ENTRY * max(1, nstation * nchan))) - 1)
+def direct_block(nstation: int, nchan: int, budget: float = PIXEL_BEAM_BYTES) -> int:
+    """Pixels whose full-Jones beam for one time fits ``budget`` bytes (at least 1)."""
+    return max(1, int(budget // (_PIXEL_BEAM_ENTRY * max(1, nstation * nchan))) - 1)
 
 
 def _pixel_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
-                  stations: np.ndarray, centre_correction: bool, dtype) -> Iterator:
+                  stations: np.ndarray, centre_correction: bool, dtype,
+                  block_bytes: float) -> Iterator:
     """(t0, t1, part, Jones, correction): :func:`_beam` towards the pixels ``part`` (a
     :class:`SkyComponents` of a block of the sky's pixels, or the sky) for times
-    t0..t1-1, each within :data:`PIXEL_BEAM_BYTES`, so that a long chunk planned for
+    t0..t1-1, each within ``block_bytes``, so that a long chunk planned for
     degridding never holds the beam at every pixel for all its times; the visibilities of
     the parts add up to the sky's."""
-    size = direct_block(stations.size, freq.size)
+    size = direct_block(stations.size, freq.size, block_bytes)
     parts = [sky] if size >= sky.ndir else [
         replace(sky, ra=sky.ra[i:i + size], dec=sky.dec[i:i + size],
                 lmn1=sky.lmn1[i:i + size], iquv=sky.iquv[i:i + size], w=sky.w[i:i + size],
                 sign=sky.sign[i:i + size], grid=None) for i in range(0, sky.ndir, size)]
     for part in parts:
         per_time = _PIXEL_BEAM_ENTRY * stations.size * (part.ndir + 1) * freq.size
-        block = max(1, int(PIXEL_BEAM_BYTES // max(1, per_time)))
+        block = max(1, int(block_bytes // max(1, per_time)))
         for t0 in range(0, times.size, block):
             t1 = min(times.size, t0 + block)
             yield (t0, t1, part, *_beam(beam_model, part, fmeta, times[t0:t1], freq,
@@ -296,31 +312,34 @@ def _pixel_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
 HORIZON_MIN_DIRECTIONS = 256
 
 
-def _visible(sky, times: np.ndarray, stations: np.ndarray, freq: np.ndarray):
+def _visible(sky, times: np.ndarray, stations: np.ndarray, freq: np.ndarray,
+             block_bytes: float):
     """:func:`msleak.predict.horizon.visible_blocks` of an all-sky sky for a chunk (None for
     other skies)."""
     if sky.horizon is None:
         return None
-    most = direct_block(stations.size, freq.size) // HORIZON_MIN_DIRECTIONS
+    most = direct_block(stations.size, freq.size, block_bytes) // HORIZON_MIN_DIRECTIONS
     return visible_blocks(sky.horizon, times, sky.ra, sky.dec, max_times=max(1, most))
 
 
 def _own_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
-                stations: np.ndarray, centre_correction: bool, dtype, view=None) -> Iterator:
+                stations: np.ndarray, centre_correction: bool, dtype, view=None,
+                block_bytes: float = PIXEL_BEAM_BYTES) -> Iterator:
     """:func:`_pixel_blocks`, or for an all-sky sky with its ``view`` (:func:`_visible`):
     per block of times, the directions above the horizon at some time of the block, in
-    blocks within :data:`PIXEL_BEAM_BYTES` (twice the beam the previous block returned,
-    for the masked copy: a factored beam takes far less than full Jones matrices), their
-    beam zero at the times they are below."""
+    blocks within ``block_bytes`` (twice the beam the previous block returned, for the
+    masked copy: a factored beam takes far less than full Jones matrices, and the direct
+    kernel's scratch), their beam zero at the times they are below."""
     if view is None:
         yield from _pixel_blocks(sky, beam_model, fmeta, times, freq, stations,
-                                 centre_correction, dtype)
+                                 centre_correction, dtype, block_bytes)
         return
     entry = _PIXEL_BEAM_ENTRY * stations.size    # bytes per (time, channel, direction)
+    kernel = kernels.scratch_bytes(stations.size, 1, 1, freq.size, dtype)  # per direction
     for t0, t1, index, mask in view:
         i = 0
         while i < index.size:
-            size = max(1, int(PIXEL_BEAM_BYTES // (entry * freq.size * (t1 - t0))))
+            size = max(1, int(block_bytes // (entry * freq.size * (t1 - t0) + kernel)))
             rows = index[i:i + size]
             part = replace(sky, ra=sky.ra[rows], dec=sky.dec[rows], lmn1=sky.lmn1[rows],
                            iquv=sky.iquv[rows], w=sky.w[rows], sign=sky.sign[rows],

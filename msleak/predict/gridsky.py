@@ -55,6 +55,8 @@ PLAN_NSUB = 48
 DEGRID_PIXEL_BYTES = 480
 #: beam at every pixel of a pixel sky summed directly: at most this many bytes at once
 PIXEL_BEAM_BYTES = 512 * 2**20
+#: an all-sky sky's beam blocks take at least this many bytes, whatever the memory limit
+MIN_PIXEL_BEAM_BYTES = 64 * 2**20
 #: directions per axis at which the beam's spectrum is measured
 _PROBE = 64
 #: part of the beam's spectrum's norm below which a slowly decaying floor ends the

@@ -28,7 +28,8 @@ from msleak.io.ms import iter_rows, read_used_antennas
 from msleak.predict import kernels
 from msleak.predict.chunks import add_time, plan_chunks, predict_chunk, direct_block
 from msleak.predict.components import SkySet
-from msleak.predict.gridsky import DEGRID_BATCH, DEGRID_PIXEL_BYTES, PIXEL_BEAM_BYTES, PLAN_NSUB
+from msleak.predict.gridsky import (DEGRID_BATCH, DEGRID_PIXEL_BYTES, MIN_PIXEL_BEAM_BYTES,
+                                    PIXEL_BEAM_BYTES, PLAN_NSUB)
 from msleak.predict.stations import PHASE_TOLERANCE_RAD, uvw_tolerance
 
 __all__ = ["Chunk", "iter_chunks", "chunk_task", "register_beam", "registered_beam"]
@@ -64,6 +65,7 @@ class Chunk:
     dtype: str
     nc_chunk: int
     layout: CorrelationLayout
+    block_bytes: float = PIXEL_BEAM_BYTES
     last: bool = False
     beam_options: dict = field(default_factory=dict)
 
@@ -140,9 +142,10 @@ def iter_chunks(k: int, run, memory_per_task: float, dtype, centre_correction, b
         stations = np.unique(np.concatenate([a1_all, a2_all]))
         st_index = np.full(int(stations.max()) + 1, -1, dtype=np.int64)
         st_index[stations] = np.arange(stations.size)
-        nt_chunk, nc_chunk = _chunk_size(run.active, comp, times.size, freq.size, stations.size,
-                                         rows_per_time, rows_all.size, memory_per_task, dtype,
-                                         beam != "none", tasks)
+        nt_chunk, nc_chunk, block = _chunk_size(run.active, comp, times.size, freq.size,
+                                                stations.size, rows_per_time, rows_all.size,
+                                                memory_per_task, dtype, beam != "none",
+                                                tasks)
         log.info("%s field %d, data description %d: %d sky(s) with %s sources, %d directions "
                  "in all, %d stations, %d times (%d per chunk), %d channels (%d per chunk), "
                  "feeds %s, UVW tolerance %.3g mm (%g rad at %.3f MHz)", plan.ms.name, f, d,
@@ -163,15 +166,16 @@ def iter_chunks(k: int, run, memory_per_task: float, dtype, centre_correction, b
                         rows=rows, tidx=np.searchsorted(tchunk, time_all[in_chunk]),
                         p=st_index[a1_all[in_chunk]], q=st_index[a2_all[in_chunk]], uvw=uvw,
                         centre_correction=centre_correction, dtype=dtype.name,
-                        nc_chunk=nc_chunk, layout=plan.feeds[d],
+                        nc_chunk=nc_chunk, layout=plan.feeds[d], block_bytes=block,
                         beam_options=plan.beam_options)
 
 
 def _chunk_size(active: list, comp: SkySet, ntime: int, nchan: int, nstation: int,
                 rows_per_time: int, nrows: int, memory_per_task: float, dtype,
-                has_beam: bool, tasks: int = 1) -> tuple[int, int]:
+                has_beam: bool, tasks: int = 1) -> tuple[int, int, int]:
     """:func:`plan_chunks` for a group: the skies, the rows' metadata
-    and the kernel's scratch memory are the fixed part."""
+    and the kernel's scratch memory are the fixed part; and the bytes of the beam blocks of
+    skies summed pixel by pixel (:func:`msleak.predict.chunks.predict_chunk`)."""
     direct = [comp.skies[j] for j in active if not comp.skies[j].own]
     pixel = [comp.skies[j] for j in active if comp.skies[j].grid is not None]
     all_sky = [comp.skies[j] for j in active if comp.skies[j].horizon is not None]
@@ -181,18 +185,27 @@ def _chunk_size(active: list, comp: SkySet, ntime: int, nchan: int, nstation: in
     # fallback; rows whose UVW are not antenna-based) and an all-sky sky take the beam at
     # a block of their pixels for a few times at once within PIXEL_BEAM_BYTES
     # (_pixel_blocks, _own_blocks), and the direct kernel's scratch for that block
+    # An all-sky sky's blocks (scratch included) take half of what the rest leaves, within
+    # [MIN_PIXEL_BEAM_BYTES, PIXEL_BEAM_BYTES], and its chunks keep every channel: the
+    # beam's work per direction (coordinates, tile factors) is shared by the channels of
+    # one call, so cutting channels to fit would repeat it.
     nsub = max([s.grid.nsub or PLAN_NSUB for s in pixel], default=0)
     widest = max([min(s.ndir, direct_block(nstation, nchan)) for s in pixel
-                  if s.grid.auto] + [min(s.ndir, direct_block(nstation, nchan))
-                                     for s in all_sky], default=0)
+                  if s.grid.auto], default=0)
     fixed = (comp.nbytes + nrows * 28 + 128 * DEGRID_BATCH * nsub ** 2
              + DEGRID_PIXEL_BYTES * max([s.ndir for s in pixel], default=0)
              + (PIXEL_BEAM_BYTES if widest else 0)
              + kernels.scratch_bytes(nstation, max(comp.ndir, widest),
                                      sum(s.ndir for s in direct) + widest, nchan, dtype))
-    return plan_chunks(ntime, nchan, nstation, comp.ndir, rows_per_time, memory_per_task,
-                       dtype.itemsize, has_beam, fixed, nsky=len(active),
-                       long_times=bool(pixel), subgrid_dirs=nsub ** 2, tasks=tasks)
+    block = PIXEL_BEAM_BYTES
+    if all_sky:
+        block = int(min(PIXEL_BEAM_BYTES,
+                        max(MIN_PIXEL_BEAM_BYTES, (memory_per_task - fixed) // 2)))
+        fixed += block
+    return (*plan_chunks(ntime, nchan, nstation, comp.ndir, rows_per_time, memory_per_task,
+                         dtype.itemsize, has_beam, fixed, nsky=len(active),
+                         long_times=bool(pixel), subgrid_dirs=nsub ** 2, tasks=tasks,
+                         whole_channels=bool(all_sky)), block)
 
 
 def chunk_task(job: Chunk, _shared=None) -> tuple[list, dict, int]:
@@ -205,7 +218,8 @@ def chunk_task(job: Chunk, _shared=None) -> tuple[list, dict, int]:
     vis, n_per_baseline = predict_chunk(job.comp, beam_model, job.times, job.freq,
                                         job.stations, job.fmeta, job.tidx, job.p, job.q,
                                         job.uvw, job.centre_correction, np.dtype(job.dtype),
-                                        job.nc_chunk, timings, job.active)
+                                        job.nc_chunk, timings, job.active,
+                                        job.block_bytes)
     for k, values in enumerate(vis):
         if job.layout.feed == "circular":
             values = kernels.linear_to_circular(values)

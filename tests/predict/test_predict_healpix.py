@@ -224,7 +224,7 @@ def test_blocks_of_pixels_add_up_to_the_sky(tmp_path, field, monkeypatch):
     converts its directions to ITRF through its own fitted map (within 5e-7 rad of
     casacore). Before the widest maps were fitted over the whole sphere, the NCP's blocks
     differed by 0.1 of the peak."""
-    from msleak.predict import chunks
+    from msleak.verbs import predict_chunks
 
     ms = simulate(tmp_path / "b.ms", field=field, duration=2 * 600 / 3600, interval=600.0,
                   freq_min=150e6, nchan=2, chan_width=1e6, stations="CS001HBA0,CS002HBA0,"
@@ -233,7 +233,8 @@ def test_blocks_of_pixels_add_up_to_the_sky(tmp_path, field, monkeypatch):
     stokes = np.zeros((4, freq.size, NPIX))
     stokes[1:3] = np.random.default_rng(7).normal(size=(2, freq.size, NPIX))
     whole = _run(ms, _sky(stokes, freq), beam="everybeam")
-    monkeypatch.setattr(chunks, "PIXEL_BEAM_BYTES", 200_000)     # about 10 pixels a block
+    for name in ("PIXEL_BEAM_BYTES", "MIN_PIXEL_BEAM_BYTES"):   # a few pixels a block
+        monkeypatch.setattr(predict_chunks, name, 200_000)
     blocks = _run(ms, _sky(stokes, freq), beam="everybeam")
     peak = np.abs(whole.values).max()
     np.testing.assert_allclose(blocks.values, whole.values, rtol=0, atol=1e-6 * peak)

@@ -279,6 +279,18 @@ def test_plan_chunks_are_balanced_and_shared_among_tasks():
             assert nchunk >= min(2, ntime)
 
 
+def test_plan_chunks_keep_every_channel_for_an_all_sky_sky(caplog):
+    """An all-sky sky's chunks keep every channel: times are cut first, and a budget too
+    small for one time of every channel still gives (1, nchan), with a warning."""
+    per = 96**2 * 8 + 1176 * 4 * 24 + 48 * 1 * 4 * 40
+    assert plan_chunks(30, 50, 48, 0, 1176, 120 * per, 8, True, whole_channels=True) == (2, 50)
+    with caplog.at_level("WARNING"):
+        assert plan_chunks(30, 50, 48, 0, 1176, 10 * per, 8, True,
+                           whole_channels=True) == (1, 50)
+    assert "too small for one time slot of every channel" in caplog.text
+    assert plan_chunks(30, 50, 48, 0, 1176, 10 * per, 8, True) == (1, 10)
+
+
 def test_plan_chunks_long_times_for_degridding():
     """A degridded sky: all times (or ntime / tasks) when LONG_CHANNELS channels fit with
     them, else fewer times with LONG_CHANNELS channels; always within the budget."""
