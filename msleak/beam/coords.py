@@ -198,7 +198,7 @@ def _sphere_map(time_mjd_s: float, position_itrf: tuple | None) -> ItrfMap:
     about 5e-7 rad from casacore), kept for the blocks of directions of the same time."""
     k = np.arange(48) + 0.5
     anchors = radec_to_unit(np.pi * (1 + 5 ** 0.5) * k, np.arcsin(1 - 2 * k / 48))
-    log.debug("J2000->ITRF map fitted over the whole sky (accuracy ~1e-6 rad)")
+    log.debug("J2000->ITRF map fitted over the whole sky (accuracy ~5e-7 rad)")
     return _solved(time_mjd_s, anchors, np.array([0.0, 0.0, 1.0]), np.pi,
                    None if position_itrf is None else np.asarray(position_itrf))
 

@@ -208,7 +208,7 @@ class Runner:
         threads among its own, so that no core waits."""
         if not isinstance(self.task_threads, int) or ntask >= self.workers:
             return self.task_threads
-        return max(1, self.task_threads * self.workers // max(1, ntask))
+        return max(1, min(cpu_count(), self.task_threads * self.workers // max(1, ntask)))
 
     def _map_distributed(self, func, jobs, shared, window):
         from distributed import KilledWorker

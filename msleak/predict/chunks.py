@@ -44,8 +44,9 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
                 whole_channels: bool = False) -> tuple[int, int]:
     """Times and channels per chunk so that the working set stays under ``memory_limit``.
 
-    All channels and as many times as fit, in chunks of equal length and at least
-    ``tasks`` of them while times allow; with ``long_times`` (a degridded sky, whose
+    All channels and as many times as fit, at least ``tasks`` chunks while times allow,
+    their lengths balanced (ceil(ntime / n) for n chunks, the last shorter); with
+    ``long_times`` (a degridded sky, whose
     w-layer FFTs are done once per chunk and channel) all times and as many channels as
     fit, but at least :data:`LONG_CHANNELS` channels (fewer times) while memory allows,
     since a beam model evaluates channels together more cheaply than one by one, and at
@@ -80,7 +81,7 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
                     "(needs about %.0f MB); going ahead with that", memory_limit / 2**20,
                     (per_unit + fixed_bytes) / 2**20)
         return 1, 1
-    if long_times:
+    if long_times and not whole_channels:
         least = min(nchan, LONG_CHANNELS)
         most = -(-ntime // max(1, tasks))
         if units >= most * least:
@@ -92,9 +93,9 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
 
 
 def _balanced(ntime: int, most: int, tasks: int) -> int:
-    """Times per chunk: chunks of equal length (within one time) of at most ``most``
-    times, and at least ``tasks`` of them while there are times enough, so that the tasks
-    run at once share the work (not 29 times and 1)."""
+    """Times per chunk: ceil(ntime / n) for the fewest chunks n of at most ``most`` times,
+    and at least ``tasks`` of them while there are times enough, so that the tasks run at
+    once share the work (30 times that fit 29 per chunk: 15 + 15, not 29 + 1)."""
     nchunk = max(-(-ntime // most), min(max(1, tasks), ntime))
     return -(-ntime // nchunk)
 
@@ -187,7 +188,7 @@ def _per_baseline(outs: list, skies: list, views: list, jones, left, rows_off: n
         out[rows_off, channels] = 0
         for t0, t1, part, sky_jones, sky_left in _own_blocks(
                 sky, beam_model, fmeta, times, freq[channels], stations, centre_correction,
-                dtype, view, block_bytes):
+                dtype, view, block_bytes, expand=True):
             sel = np.flatnonzero((tidx >= t0) & (tidx < t1))
             out[rows_off[sel], channels] += predict_rows(
                 _directions_jones(sky_jones, np.arange(part.ndir)), tidx[sel] - t0, p[sel],
@@ -324,12 +325,14 @@ def _visible(sky, times: np.ndarray, stations: np.ndarray, freq: np.ndarray,
 
 def _own_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
                 stations: np.ndarray, centre_correction: bool, dtype, view=None,
-                block_bytes: float = PIXEL_BEAM_BYTES) -> Iterator:
+                block_bytes: float = PIXEL_BEAM_BYTES, expand: bool = False) -> Iterator:
     """:func:`_pixel_blocks`, or for an all-sky sky with its ``view`` (:func:`_visible`):
     per block of times, the directions above the horizon at some time of the block, in
-    blocks within ``block_bytes`` (twice the beam the previous block returned, for the
-    masked copy: a factored beam takes far less than full Jones matrices, and the direct
-    kernel's scratch), their beam zero at the times they are below."""
+    blocks within ``block_bytes``, their beam zero at the times they are below. A block
+    counts the direct kernel's scratch and, per (time, channel, direction), three
+    complex128 Jones matrices per station (what full-Jones models hold while they compute),
+    or, when the previous block's beam came as :class:`JonesFactors` and is not to be
+    ``expand``-ed to full Jones, twice the bytes it took (the model's own temporaries)."""
     if view is None:
         yield from _pixel_blocks(sky, beam_model, fmeta, times, freq, stations,
                                  centre_correction, dtype, block_bytes)
@@ -346,7 +349,7 @@ def _own_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
                            horizon=None)
             jones, left = _beam(beam_model, part, fmeta, times[t0:t1], freq, stations,
                                 centre_correction, dtype)
-            if jones is not None:   # the next blocks sized by what this one took
+            if isinstance(jones, JonesFactors) and not expand:   # sized by what it took
                 entry = max(1.0, 2 * _nbytes(jones) / (freq.size * (t1 - t0) * rows.size))
             if mask is not None:
                 jones = mask_jones(jones, mask[:, i:i + size], stations.size, dtype)
@@ -354,11 +357,9 @@ def _own_blocks(sky, beam_model, fmeta, times: np.ndarray, freq: np.ndarray,
             i += rows.size
 
 
-def _nbytes(jones) -> int:
-    """Bytes of a beam from :func:`_beam` (full Jones or :class:`JonesFactors`)."""
-    if isinstance(jones, JonesFactors):
-        return int(jones.scalar.nbytes + jones.element.nbytes)
-    return int(jones.nbytes)
+def _nbytes(jones: JonesFactors) -> int:
+    """Bytes of a factored beam from :func:`_beam`."""
+    return int(jones.scalar.nbytes + jones.element.nbytes)
 
 
 def _beam(beam_model, comp: SkySet, fmeta, times: np.ndarray, freq: np.ndarray,

@@ -276,19 +276,19 @@ def test_memory_budget_is_shared_and_bounds_chunks():
         assert 2 * rows < rows_for_memory(budget, nchan, spec, 1)
 
 
-def test_tasks_fewer_than_workers_share_the_idle_threads():
+def test_tasks_fewer_than_workers_share_the_idle_threads(monkeypatch):
     """A batch smaller than ``workers`` (one chunk, the last chunks) gives each task the
     cores the missing tasks would have had; a full batch keeps cores / workers each."""
     from msleak.parallel import open_runner
+    from msleak.parallel import runner as runner_module
     from msleak.parallel.runner import task_threads
 
     def seen(job, shared):
         return task_threads()
 
-    with open_runner("threads", 2, 8e8) as runner:
+    with open_runner("threads", 2, 8e8) as runner, monkeypatch.context() as m:
+        m.setattr(runner_module, "cpu_count", lambda: 6)
         runner.task_threads = 3          # as on a 6-core machine: 3 threads per task
         assert [t for _, t in runner.map(seen, [0])] == [6]
         assert [t for _, t in runner.map(seen, [0, 1])] == [3, 3]
         assert [t for _, t in runner.map(seen, [0, 1, 2])] == [3, 3, 6]
-    with open_runner("sync", None, 8e8) as runner:
-        assert runner._batch_threads(1) == runner.task_threads

@@ -262,8 +262,8 @@ def test_plan_chunks_respects_budget():
 
 
 def test_plan_chunks_are_balanced_and_shared_among_tasks():
-    """All channels: as many times as fit, cut into chunks of equal length (within one
-    time), at least one per task while there are times enough; within the budget."""
+    """All channels: as many times as fit, at least one chunk per task while there are
+    times enough, each ceil(ntime / n) times for the fewest n chunks that fit."""
     per = 96**2 * 8 + 1176 * 4 * 24 + 48 * 2501 * 4 * 40       # per (time, channel)
     fit = 29 * 50 * per                                        # 29 times fit
     assert plan_chunks(30, 50, 48, 2500, 1176, fit, 8, True) == (15, 50)
@@ -275,8 +275,8 @@ def test_plan_chunks_are_balanced_and_shared_among_tasks():
         for most in (1, 7, 29):
             nt, _ = plan_chunks(ntime, 50, 48, 2500, 1176, most * 50 * per, 8, True, tasks=2)
             nchunk = -(-ntime // nt)
-            assert nt <= most and nchunk * nt - ntime < nchunk     # equal within one time
-            assert nchunk >= min(2, ntime)
+            fewest = max(-(-ntime // most), min(2, ntime))
+            assert nt <= most and nt == -(-ntime // fewest) and nchunk >= min(2, ntime)
 
 
 def test_plan_chunks_keep_every_channel_for_an_all_sky_sky(caplog):
