@@ -167,6 +167,8 @@ class BeamModel(abc.ABC):
         -------
         (nstation, ntime, nchan, ndir, 2, 2) complex array
             Rows: feeds (X, Y); columns: sky (North, East).  Zero below the horizon.
+            A new array the caller may change (predict zeroes it in place below its
+            horizon); a model must not return an array it keeps.
         """
         time, freq, ra, dec, stations = self._check(time_mjd_s, freq_hz, ra, dec, stations)
         dtype = np.dtype(dtype)
@@ -190,7 +192,8 @@ class BeamModel(abc.ABC):
     def jones_factors(self, time_mjd_s, freq_hz, ra, dec, *, stations=None,
                       dtype=np.complex128) -> JonesFactors | None:
         """The uncorrected :meth:`jones` as :class:`JonesFactors`, or None if the model's
-        stations do not factor so (the default); same parameters as :meth:`jones`."""
+        stations do not factor so (the default); same parameters as :meth:`jones`, and,
+        like it, new arrays the caller may change."""
         time, freq, ra, dec, stations = self._check(time_mjd_s, freq_hz, ra, dec, stations)
         dtype = np.dtype(dtype)
         if dtype.kind != "c":
