@@ -179,11 +179,12 @@ def itrf_map(time_mjd_s: float, unit_j2000: np.ndarray, *, min_radius_rad: float
     mean = u.mean(axis=0)
     norm = np.linalg.norm(mean)
     centre = mean / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
-    if norm < 0.5 or np.arccos(np.clip(u @ centre, -1, 1)).max() > _CAP_MAX_RAD:
+    spread = float(np.arccos(np.clip(u @ centre, -1, 1)).max())
+    if norm < 0.5 or spread > _CAP_MAX_RAD:
         # very wide set of directions: one map over the whole sphere per time and position
         return _sphere_map(float(time_mjd_s), None if position_itrf is None else
                            tuple(float(x) for x in np.ravel(position_itrf)))
-    return _fit_map(time_mjd_s, u, centre, min_radius_rad, position_itrf)
+    return _fit_map(time_mjd_s, centre, max(spread, min_radius_rad), position_itrf)
 
 
 #: widest cap (rad) :func:`itrf_map` fits on its own: its anchors reach 80 deg from the
@@ -203,10 +204,9 @@ def _sphere_map(time_mjd_s: float, position_itrf: tuple | None) -> ItrfMap:
                    None if position_itrf is None else np.asarray(position_itrf))
 
 
-def _fit_map(time_mjd_s: float, u: np.ndarray, centre: np.ndarray, min_radius_rad: float,
+def _fit_map(time_mjd_s: float, centre: np.ndarray, radius: float,
              position_itrf) -> ItrfMap:
-    """:func:`itrf_map` fitted over the cap about ``centre`` that holds ``u``."""
-    radius = max(float(np.arccos(np.clip(u @ centre, -1, 1)).max()), min_radius_rad)
+    """:func:`itrf_map` fitted over the cap of ``radius`` (rad) about ``centre``."""
     e, n = _tangent_basis(centre)
     side = 4 if radius < np.radians(20) else 6
     half = np.tan(min(radius, _CAP_MAX_RAD))

@@ -46,11 +46,11 @@ def plan_chunks(ntime: int, nchan: int, nstation: int, ndir: int, rows_per_time:
 
     All channels and as many times as fit, at least ``tasks`` chunks while times allow,
     their lengths balanced (ceil(ntime / n) for n chunks, the last shorter); with
-    ``long_times`` (a degridded sky, whose
-    w-layer FFTs are done once per chunk and channel) all times and as many channels as
-    fit, but at least :data:`LONG_CHANNELS` channels (fewer times) while memory allows,
-    since a beam model evaluates channels together more cheaply than one by one, and at
-    most ntime / ``tasks`` times, so that the ``tasks`` chunks run at once all have work.
+    ``long_times`` (a degridded sky, whose w-layer FFTs are done once per chunk and
+    channel) all times and as many channels as fit, but at least :data:`LONG_CHANNELS`
+    channels (fewer times) while memory allows, since a beam model evaluates channels
+    together more cheaply than one by one, and at most ntime / ``tasks`` times, so that
+    the ``tasks`` chunks run at once all have work.
     With ``whole_channels`` (an all-sky sky, whose beam work per direction the channels of
     a chunk share) every chunk has every channel, one time at least, even beyond the budget
     (with a warning).

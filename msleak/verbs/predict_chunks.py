@@ -181,14 +181,13 @@ def _chunk_size(active: list, comp: SkySet, ntime: int, nchan: int, nstation: in
     all_sky = [comp.skies[j] for j in active if comp.skies[j].horizon is not None]
     # a degridded chunk takes complex128 Jones at nsub^2 directions (one copy, built per
     # time), the sky's w-layer grids (DEGRID_PIXEL_BYTES per pixel) and transforms
-    # DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's
-    # fallback; rows whose UVW are not antenna-based) and an all-sky sky take the beam at
-    # a block of their pixels for a few times at once within PIXEL_BEAM_BYTES
-    # (_pixel_blocks, _own_blocks), and the direct kernel's scratch for that block
-    # An all-sky sky's blocks (scratch included) take half of what the rest leaves, within
-    # [MIN_PIXEL_BEAM_BYTES, PIXEL_BEAM_BYTES], and its chunks keep every channel: the
-    # beam's work per direction (coordinates, tile factors) is shared by the channels of
-    # one call, so cutting channels to fit would repeat it.
+    # DEGRID_BATCH subgrids at once; a pixel sky summed directly (auto's fallback; rows
+    # whose UVW are not antenna-based) takes the beam at a block of its pixels for a few
+    # times at once within PIXEL_BEAM_BYTES (_pixel_blocks), and the direct kernel's
+    # scratch for that block. An all-sky sky's blocks (_own_blocks, scratch included) take
+    # half of what the rest leaves, within [MIN_PIXEL_BEAM_BYTES, PIXEL_BEAM_BYTES], and
+    # its chunks keep every channel: the beam's work per direction (coordinates, tile
+    # factors) is shared by the channels of one call, so cutting channels would repeat it.
     nsub = max([s.grid.nsub or PLAN_NSUB for s in pixel], default=0)
     widest = max([min(s.ndir, direct_block(nstation, nchan)) for s in pixel
                   if s.grid.auto], default=0)
